@@ -1,0 +1,32 @@
+# The whole set-up on a fresh machine: `make demo`, then `make test`.
+PYTHON ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test lint bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	# torch first, from the local CPU wheel, so nothing resolves a CUDA build.
+	$(BIN)/python -m pip install --quiet torch==2.13.0
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/servogym demo --out runs/demo
+
+test: $(STAMP)
+	$(BIN)/ruff check servogym tests experiments
+	$(BIN)/python -m pytest -q -n 2 -m "not slow"
+
+lint: $(STAMP)
+	$(BIN)/ruff check servogym tests experiments
+	$(BIN)/ruff format --check servogym tests experiments
+
+bench: $(STAMP)
+	$(BIN)/python experiments/bench_servo_loop.py
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,148 @@
+"""Legal ranges of chip registers, shared by every chip family.
+
+A :class:`ParamSpec` describes one integer register: its legal range, its default, whether
+an optimizer should search it on a log scale, and whether tuners should touch it at all.
+A :class:`ParameterSpace` is the ordered collection for one chip model; envs and tuners read
+ranges from it instead of hard-coding them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import numbers
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+
+class ParameterError(ValueError):
+    """A parameter value is illegal for the chip: wrong type, out of range, or unknown."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamSpec:
+    """One integer register of a chip.
+
+    Attributes:
+        name: The register's name in the vendor's own terms (``kp``, ``integration_limit``).
+        low: Smallest legal value (inclusive).
+        high: Largest legal value (inclusive).
+        default: Value used when none is given.
+        width: Storage format on the chip, e.g. ``"u16"``, ``"s16"``, ``"u32 (31 used)"``.
+        log: Whether an optimizer should search this register on a log scale. A log-scaled
+            register whose ``low`` is 0 keeps 0 reachable (0 switches the term off).
+        tunable: Whether tuners and envs search it by default. Axis configuration such as
+            the sample time or the motor limit is legal to set but not tuned by default.
+        unit: Unit of the register, e.g. ``"counts"``, ``"us"``, ``"1/65536"``.
+        doc: One line saying what the register does.
+        source: How sure the range is: ``"M"`` manual, ``"C"`` public code, ``"A"`` assumption.
+    """
+
+    name: str
+    low: int
+    high: int
+    default: int
+    width: str
+    log: bool = False
+    tunable: bool = True
+    unit: str = ""
+    doc: str = ""
+    source: str = "M"
+
+    def __post_init__(self) -> None:
+        if not self.low <= self.default <= self.high:
+            raise ValueError(
+                f"ParamSpec {self.name}: default must satisfy low <= default <= high; "
+                f"got {self.low=}, {self.default=}, {self.high=}."
+            )
+
+    @property
+    def range_text(self) -> str:
+        """The legal range as it appears in error messages, e.g. ``0 <= kp <= 32767``."""
+        return f"{self.low} <= {self.name} <= {self.high}"
+
+    def validate(self, value: Any, *, context: str = "") -> int:
+        """Return ``value`` as a Python int, or raise :class:`ParameterError`.
+
+        Only integers are accepted (Python or NumPy integers, not bools, not floats): a chip
+        register holds an integer and a float would have to be rounded silently.
+        """
+        where = f" ({context})" if context else ""
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+            raise ParameterError(
+                f"{self.name} must be an integer with {self.range_text} ({self.width}){where}; "
+                f"got {self.name}={value!r} of type {type(value).__name__}."
+            )
+        ivalue = int(value)
+        if not self.low <= ivalue <= self.high:
+            raise ParameterError(
+                f"{self.name} must satisfy {self.range_text} ({self.width}){where}; "
+                f"got {self.name}={ivalue}."
+            )
+        return ivalue
+
+
+class ParameterSpace(Mapping[str, ParamSpec]):
+    """The registers of one chip model, in a fixed order.
+
+    Args:
+        chip_model: Name of the chip model the ranges belong to (used in messages).
+        specs: The registers, in the order they are stored and exported.
+    """
+
+    def __init__(self, chip_model: str, specs: list[ParamSpec]) -> None:
+        self.chip_model = chip_model
+        self._specs = {s.name: s for s in specs}
+        if len(self._specs) != len(specs):
+            raise ValueError(f"duplicate register names in the space of {chip_model}")
+
+    def __getitem__(self, name: str) -> ParamSpec:
+        try:
+            return self._specs[name]
+        except KeyError:
+            raise ParameterError(self.unknown_message(name)) from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._specs
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._specs)
+
+    def __len__(self) -> int:
+        return len(self._specs)
+
+    def __repr__(self) -> str:
+        return f"ParameterSpace({self.chip_model!r}, {list(self._specs)})"
+
+    def unknown_message(self, name: str) -> str:
+        """An error message for a register this chip model does not have."""
+        close = difflib.get_close_matches(name, list(self._specs), n=3)
+        hint = f" Did you mean {', '.join(close)}?" if close else ""
+        return (
+            f"{self.chip_model} has no parameter {name!r}; its parameters are "
+            f"{', '.join(self._specs)}.{hint}"
+        )
+
+    def defaults(self) -> dict[str, int]:
+        """Every register's default value."""
+        return {name: spec.default for name, spec in self._specs.items()}
+
+    def tunable(self) -> list[ParamSpec]:
+        """The registers tuners search by default."""
+        return [s for s in self._specs.values() if s.tunable]
+
+    def validate(self, values: Mapping[str, Any]) -> dict[str, int]:
+        """Check a complete or partial mapping of register values; return them as ints.
+
+        Raises:
+            ParameterError: for an unknown name or an illegal value; the message names the
+                parameter, the value and the legal range.
+        """
+        out = {}
+        for name, value in values.items():
+            out[name] = self[name].validate(value, context=self.chip_model)
+        return out
+
+    def describe(self) -> list[dict[str, Any]]:
+        """A JSON-ready description of every register (for ``servogym chips --json``)."""
+        return [dataclasses.asdict(s) for s in self._specs.values()]

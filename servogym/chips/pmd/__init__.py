@@ -1,0 +1,23 @@
+"""PMD Navigator / Pilot / Magellan servo filter (MC2100 ... MC58000), exact to docs/chips/pmd.md."""
+
+from servogym.chips.pmd._params import (
+    CHIP_MODELS,
+    FIELDS,
+    SPEC_VERSION,
+    PMDAssumptions,
+    PMDChipModel,
+    PMDParams,
+    get_model,
+    parameter_space,
+)
+
+__all__ = [
+    "CHIP_MODELS",
+    "FIELDS",
+    "SPEC_VERSION",
+    "PMDAssumptions",
+    "PMDChipModel",
+    "PMDParams",
+    "get_model",
+    "parameter_space",
+]

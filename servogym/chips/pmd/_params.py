@@ -1,0 +1,377 @@
+"""PMD Navigator / Pilot / Magellan: chip models, assumption switches and parameter sets.
+
+Every number here is also in ``docs/chips/pmd.md``; ``tests/chips/test_pmd_docs.py`` checks
+that the spec's tables match this module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
+
+SPEC_VERSION = "pmd-spec-1"
+"""Version of ``docs/chips/pmd.md`` the filter implements; written into exported files."""
+
+U16_MAX = 32767
+S16_MIN, S16_MAX = -32768, 32767
+U31_MAX = 2_147_483_647
+
+
+@dataclasses.dataclass(frozen=True)
+class PMDChipModel:
+    """One PMD servo chip model.
+
+    Attributes:
+        name: Model name as sold, e.g. ``"MC2100"``.
+        line: Product line: ``"Navigator"``, ``"Pilot"`` or ``"Magellan"``.
+        description: What the chip drives.
+        n_axes: Largest number of axes in the model series.
+        sample_time_us: Default servo period for one enabled axis, in microseconds [A].
+        min_sample_time_us: Shortest legal servo period for one enabled axis, in microseconds.
+        has_biquads: Whether the position loop has the two optional biquad stages.
+        host_interface: ``"navigator"`` (one Set command per register, opcodes of the
+            Navigator/Pilot family) or ``"magellan"`` (``SetPositionLoop`` with parameter
+            numbers).
+    """
+
+    name: str
+    line: str
+    description: str
+    n_axes: int
+    sample_time_us: int
+    min_sample_time_us: int
+    has_biquads: bool
+    host_interface: str
+
+    family: ClassVar[str] = "pmd"
+
+
+# One table for every per-model difference. Sample times: a Navigator host comment gives
+# "4 axis * 154 us/axis" [C]; Pilot is the one-axis Navigator [A]; Magellan's 51.2 us/axis is
+# rounded up to a whole microsecond because SetSampleTime takes microseconds [A].
+CHIP_MODELS: dict[str, PMDChipModel] = {
+    m.name: m
+    for m in [
+        PMDChipModel("MC2100", "Navigator", "DC brush servo, 1-4 axes", 4, 154, 154, False, "navigator"),
+        PMDChipModel("MC2300", "Navigator", "brushless DC servo, 1-4 axes", 4, 154, 154, False, "navigator"),
+        PMDChipModel("MC2800", "Navigator", "DC brush and brushless servo, 1-4 axes", 4, 154, 154, False, "navigator"),
+        PMDChipModel("MC3110", "Pilot", "DC brush servo, 1 axis", 1, 154, 154, False, "navigator"),
+        PMDChipModel("MC3310", "Pilot", "brushless DC servo, 1 axis", 1, 154, 154, False, "navigator"),
+        PMDChipModel("MC58000", "Magellan", "DC brush, brushless and step servo, 1-4 axes", 4, 52, 52, True, "magellan"),
+    ]
+}
+
+
+def get_model(name: str) -> PMDChipModel:
+    """Return the chip model called ``name`` (case-insensitive), or raise with close matches."""
+    import difflib
+
+    key = name.upper()
+    if key in CHIP_MODELS:
+        return CHIP_MODELS[key]
+    close = difflib.get_close_matches(key, list(CHIP_MODELS), n=3)
+    hint = f" Did you mean {', '.join(close)}?" if close else ""
+    raise ParameterError(
+        f"unknown PMD chip model {name!r}; known models are {', '.join(CHIP_MODELS)}.{hint}"
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Assumptions: every point of the arithmetic that no source settles. Ids match the spec.
+# --------------------------------------------------------------------------------------
+
+ASSUMPTION_CHOICES: dict[str, tuple[str, ...]] = {
+    # field name: (default, alternatives...)
+    "rounding": ("floor", "trunc"),  # PMD-A1
+    "integral_shift": ("8", "0"),  # PMD-A2
+    "feedforward_input": ("integer", "fraction"),  # PMD-A3
+    "kout_scales_feedforward": ("yes", "no"),  # PMD-A4
+    "bias_order": ("bias_then_limit", "limit_then_bias"),  # PMD-A5
+    "error_saturation": ("none", "sat16"),  # PMD-A6
+    "derivative_saturation": ("sat16", "none"),  # PMD-A7
+    "derivative_mode": ("sample_difference", "cycle_difference"),  # PMD-A8
+    "accumulator": ("sat32", "sat48"),  # PMD-A9
+    "motion_error": ("stop", "flag_only"),  # PMD-A10
+    "error_limit_compare": ("greater", "greater_equal"),  # PMD-A11
+    "biquad_format": ("q14", "q15"),  # PMD-A12
+}
+
+ASSUMPTION_IDS: dict[str, str] = {
+    name: f"PMD-A{i}" for i, name in enumerate(ASSUMPTION_CHOICES, start=1)
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class PMDAssumptions:
+    """Switches for every behaviour of the PMD filter that no source settles.
+
+    Each field is one assumption of ``docs/chips/pmd.md`` (PMD-A1 ... PMD-A12); the default is
+    the first choice listed there. A trace from real hardware can decide between them.
+
+    Attributes:
+        rounding: PMD-A1. How every right shift (division by a power of two) rounds:
+            ``"floor"`` (arithmetic shift) or ``"trunc"`` (toward zero).
+        integral_shift: PMD-A2. The integral term is ``Ki * I >> s``; ``"8"`` or ``"0"``.
+        feedforward_input: PMD-A3. Whether the 16.16 commanded velocity and acceleration
+            enter as their integer part (``"integer"``) or with their 16 fractional bits
+            (``"fraction"``: ``Kvff * V >> 16``).
+        kout_scales_feedforward: PMD-A4. ``"yes"``: Kout scales the whole sum; ``"no"``: the
+            feed-forward terms are added after the Kout scaling.
+        bias_order: PMD-A5. ``"bias_then_limit"``: ``clamp(Y + bias, ±limit)``;
+            ``"limit_then_bias"``: ``sat16(clamp(Y, ±limit) + bias)``.
+        error_saturation: PMD-A6. ``"none"``: the error is the 32-bit wrapped difference;
+            ``"sat16"``: it is saturated to a signed 16-bit value before the filter.
+        derivative_saturation: PMD-A7. ``"sat16"``: the derivative difference is saturated
+            to signed 16 bits (GetDerivative returns 16 bits [C]); ``"none"``.
+        derivative_mode: PMD-A8. ``"sample_difference"``: every DerivativeTime cycles,
+            D = E now minus E at the previous derivative sample; ``"cycle_difference"``: every
+            DerivativeTime cycles, D = E now minus E one cycle ago. D is held in between.
+        accumulator: PMD-A9. Saturation of the filter sum before the Kout multiplication:
+            ``"sat32"`` or ``"sat48"`` (signed).
+        motion_error: PMD-A10. What the chip does when the error exceeds the position-error
+            limit: ``"stop"`` (motor command 0 from that cycle on, as with auto-stop enabled)
+            or ``"flag_only"`` (the event is latched, the filter keeps driving).
+        error_limit_compare: PMD-A11. The trip condition: ``"greater"`` (|E| > limit) or
+            ``"greater_equal"`` (|E| >= limit).
+        biquad_format: PMD-A12 (MC58000 only). Fractional bits of the biquad coefficients
+            B0..A2 and of the stage gain K: ``"q14"`` or ``"q15"``.
+    """
+
+    rounding: str = "floor"
+    integral_shift: str = "8"
+    feedforward_input: str = "integer"
+    kout_scales_feedforward: str = "yes"
+    bias_order: str = "bias_then_limit"
+    error_saturation: str = "none"
+    derivative_saturation: str = "sat16"
+    derivative_mode: str = "sample_difference"
+    accumulator: str = "sat32"
+    motion_error: str = "stop"
+    error_limit_compare: str = "greater"
+    biquad_format: str = "q14"
+
+    def __post_init__(self) -> None:
+        for name, choices in ASSUMPTION_CHOICES.items():
+            value = getattr(self, name)
+            if value not in choices:
+                raise ParameterError(
+                    f"assumption {ASSUMPTION_IDS[name]} {name} must be one of "
+                    f"{', '.join(repr(c) for c in choices)}; got {name}={value!r}."
+                )
+
+    def to_array(self) -> np.ndarray:
+        """The switches as an int64 array for the kernel: index of the choice, 0 = default."""
+        return np.array(
+            [ASSUMPTION_CHOICES[n].index(getattr(self, n)) for n in ASSUMPTION_CHOICES],
+            dtype=np.int64,
+        )
+
+    def to_dict(self) -> dict[str, str]:
+        """The switches by name (for provenance in exported files)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def all_settings(cls) -> list[PMDAssumptions]:
+        """The default, and each single alternative switched on alone."""
+        out = [cls()]
+        for name, choices in ASSUMPTION_CHOICES.items():
+            for alt in choices[1:]:
+                out.append(cls(**{name: alt}))
+        return out
+
+
+# Index of each assumption in PMDAssumptions.to_array(), for the kernel.
+A_INDEX: dict[str, int] = {name: i for i, name in enumerate(ASSUMPTION_CHOICES)}
+
+# --------------------------------------------------------------------------------------
+# Registers
+# --------------------------------------------------------------------------------------
+
+_FILTER_SPECS = [
+    ParamSpec("kp", 0, U16_MAX, 100, "u16 (15 bits used)", log=True, unit="gain",
+              doc="Proportional gain"),
+    ParamSpec("ki", 0, U16_MAX, 80, "u16 (15 bits used)", log=True, unit="gain",
+              doc="Integral gain; the term is ki * integral >> 8 (PMD-A2)"),
+    ParamSpec("kd", 0, U16_MAX, 400, "u16 (15 bits used)", log=True, unit="gain",
+              doc="Derivative gain"),
+    ParamSpec("kvff", 0, U16_MAX, 0, "u16 (15 bits used)", log=True, unit="gain",
+              doc="Velocity feed-forward gain on the commanded velocity"),
+    ParamSpec("kaff", 0, U16_MAX, 0, "u16 (15 bits used)", log=True, unit="gain",
+              doc="Acceleration feed-forward gain on the commanded acceleration"),
+    ParamSpec("kout", 0, U16_MAX, 13107, "u16 (15 bits used)", log=True, unit="1/65536",
+              doc="Output scale: the filter result is multiplied by kout/65536"),
+    ParamSpec("integration_limit", 0, U31_MAX, 10000, "u32 (31 bits used)", log=True,
+              unit="counts*cycles", doc="Bound on the magnitude of the accumulated error"),
+    ParamSpec("derivative_time", 1, U16_MAX, 10, "u16 (15 bits used)", log=True,
+              unit="cycles", doc="Derivative sampled every derivative_time cycles, held between",
+              source="C"),
+    ParamSpec("bias", S16_MIN, S16_MAX, 0, "s16", unit="motor command",
+              doc="DC motor offset added to the filter output"),
+    ParamSpec("motor_limit", 0, U16_MAX, U16_MAX, "u16 (15 bits used)", tunable=False,
+              unit="motor command", doc="Bound on the magnitude of the motor command"),
+    ParamSpec("position_error_limit", 0, U31_MAX, 32767, "u32 (31 bits used)", tunable=False,
+              unit="counts", doc="Motion error when |error| exceeds it (PMD-A10, PMD-A11)",
+              source="A"),
+]
+
+
+def _biquad_specs(stage: int) -> list[ParamSpec]:
+    p = f"biquad{stage}_"
+    coef = dict(width="s16", unit="1/2^14 (PMD-A12)", source="A", tunable=False)
+    return [
+        ParamSpec(p + "enable", 0, 1, 0, "u16 flag", tunable=False, unit="flag",
+                  doc=f"Biquad stage {stage} on (1) or bypassed (0)", source="C"),
+        ParamSpec(p + "b0", S16_MIN, S16_MAX, 16384, doc="Numerator coefficient b0", **coef),
+        ParamSpec(p + "b1", S16_MIN, S16_MAX, 0, doc="Numerator coefficient b1", **coef),
+        ParamSpec(p + "b2", S16_MIN, S16_MAX, 0, doc="Numerator coefficient b2", **coef),
+        ParamSpec(p + "a1", S16_MIN, S16_MAX, 0, doc="Denominator coefficient a1", **coef),
+        ParamSpec(p + "a2", S16_MIN, S16_MAX, 0, doc="Denominator coefficient a2", **coef),
+        ParamSpec(p + "k", 0, U16_MAX, 16384, "u16 (15 bits used)", tunable=False,
+                  unit="1/2^14 (PMD-A12)", doc="Stage output gain", source="A"),
+    ]
+
+
+_BIQUAD_SPECS = _biquad_specs(1) + _biquad_specs(2)
+
+FIELDS: tuple[str, ...] = (
+    *(s.name for s in _FILTER_SPECS),
+    "sample_time_us",
+    *(s.name for s in _BIQUAD_SPECS),
+)
+"""Every register of a PMDParams, in kernel-array order."""
+
+P_INDEX: dict[str, int] = {name: i for i, name in enumerate(FIELDS)}
+BIQUAD_FIELDS: tuple[str, ...] = tuple(s.name for s in _BIQUAD_SPECS)
+
+
+def parameter_space(model: str | PMDChipModel) -> ParameterSpace:
+    """The legal registers of one PMD chip model (biquads only on MC58000)."""
+    m = model if isinstance(model, PMDChipModel) else get_model(model)
+    sample = ParamSpec(
+        "sample_time_us", m.min_sample_time_us, 65535, m.sample_time_us, "u16",
+        tunable=False, unit="us", doc="Servo period for one enabled axis", source="A",
+    )
+    specs = [*_FILTER_SPECS, sample]
+    if m.has_biquads:
+        specs += _BIQUAD_SPECS
+    return ParameterSpace(m.name, specs)
+
+
+@dataclasses.dataclass(frozen=True)
+class PMDParams:
+    """A complete, legal parameter set for one axis of a PMD chip.
+
+    Field names are the chip's own register names. Construction validates every field
+    against the chip model's legal ranges and raises :class:`ParameterError` naming the
+    parameter, the value and the range; nothing is clamped.
+
+    Attributes:
+        model: Chip model name (``"MC2100"`` ... ``"MC58000"``).
+        kp, ki, kd, kvff, kaff, kout: Filter gains, unsigned 16-bit, 0..32767.
+        integration_limit: Bound on the error sum, 0..2,147,483,647.
+        derivative_time: Derivative sample interval in cycles, 1..32767.
+        bias: Motor bias, signed 16-bit, -32768..32767.
+        motor_limit: Motor command limit, 0..32767.
+        position_error_limit: Motion-error threshold in counts, 0..2,147,483,647.
+        sample_time_us: Servo period in microseconds (model minimum .. 65535). ``None``
+            selects the model's default.
+        biquad1_* / biquad2_*: MC58000 biquad stages (enable 0/1, coefficients s16, k u16);
+            on other models they must keep their defaults (bypassed).
+    """
+
+    model: str = "MC2100"
+    kp: int = 100
+    ki: int = 80
+    kd: int = 400
+    kvff: int = 0
+    kaff: int = 0
+    kout: int = 13107
+    integration_limit: int = 10000
+    derivative_time: int = 10
+    bias: int = 0
+    motor_limit: int = 32767
+    position_error_limit: int = 32767
+    sample_time_us: int | None = None
+    biquad1_enable: int = 0
+    biquad1_b0: int = 16384
+    biquad1_b1: int = 0
+    biquad1_b2: int = 0
+    biquad1_a1: int = 0
+    biquad1_a2: int = 0
+    biquad1_k: int = 16384
+    biquad2_enable: int = 0
+    biquad2_b0: int = 16384
+    biquad2_b1: int = 0
+    biquad2_b2: int = 0
+    biquad2_a1: int = 0
+    biquad2_a2: int = 0
+    biquad2_k: int = 16384
+
+    def __post_init__(self) -> None:
+        chip = get_model(self.model)
+        object.__setattr__(self, "model", chip.name)
+        if self.sample_time_us is None:
+            object.__setattr__(self, "sample_time_us", chip.sample_time_us)
+        space = parameter_space(chip)
+        for name in FIELDS:
+            value = getattr(self, name)
+            if name in space:
+                object.__setattr__(self, name, space[name].validate(value, context=chip.name))
+            elif value != _BIQUAD_DEFAULTS[name]:
+                raise ParameterError(
+                    f"{name} exists only on models with biquad stages (MC58000); "
+                    f"{chip.name} has none, so {name} must stay {_BIQUAD_DEFAULTS[name]}; "
+                    f"got {name}={value!r}."
+                )
+
+    @property
+    def chip(self) -> PMDChipModel:
+        """The chip model record."""
+        return CHIP_MODELS[self.model]
+
+    @property
+    def space(self) -> ParameterSpace:
+        """The legal ranges for this set's chip model."""
+        return parameter_space(self.model)
+
+    @property
+    def sample_time_s(self) -> float:
+        """Servo period in seconds."""
+        return self.sample_time_us * 1e-6
+
+    @classmethod
+    def default(cls, model: str) -> PMDParams:
+        """The default set of a model (vendor example gains, see the spec)."""
+        return cls(model=model)
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> PMDParams:
+        """Build from a mapping of register names; unknown names raise with close matches."""
+        values = dict(values)
+        model = values.pop("model", "MC2100")
+        space = parameter_space(model)
+        for name in values:
+            if name not in FIELDS:
+                raise ParameterError(space.unknown_message(name))
+        return cls(model=model, **values)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every field, ``model`` first; biquad fields only for models that have them."""
+        space = self.space
+        return {"model": self.model, **{n: getattr(self, n) for n in FIELDS if n in space}}
+
+    def replace(self, **changes: Any) -> PMDParams:
+        """A copy with some registers changed (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_array(self) -> np.ndarray:
+        """All registers as an int64 array in :data:`FIELDS` order, for the kernel."""
+        return np.array([getattr(self, n) for n in FIELDS], dtype=np.int64)
+
+
+_BIQUAD_DEFAULTS = {s.name: s.default for s in _BIQUAD_SPECS}
