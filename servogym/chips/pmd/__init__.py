@@ -1,4 +1,4 @@
-"""PMD Navigator / Pilot / Magellan servo filter (MC2100 ... MC58000), exact to docs/chips/pmd.md."""
+"""PMD Navigator / Pilot / Magellan servo filter (MC2100 ... MC58000), per docs/chips/pmd.md."""
 
 from servogym.chips.pmd._params import (
     CHIP_MODELS,

@@ -29,10 +29,23 @@ ILIM, DTIME, BIAS = P_INDEX["integration_limit"], P_INDEX["derivative_time"], P_
 MLIM, PEL = P_INDEX["motor_limit"], P_INDEX["position_error_limit"]
 BQ1, BQ2 = P_INDEX["biquad1_enable"], P_INDEX["biquad2_enable"]
 
-A_ROUND, A_ISHIFT, A_FFIN = A_INDEX["rounding"], A_INDEX["integral_shift"], A_INDEX["feedforward_input"]
+A_ROUND, A_ISHIFT, A_FFIN = (
+    A_INDEX["rounding"],
+    A_INDEX["integral_shift"],
+    A_INDEX["feedforward_input"],
+)
 A_KOUTFF, A_BIAS = A_INDEX["kout_scales_feedforward"], A_INDEX["bias_order"]
-A_ESAT, A_DSAT, A_DMODE = A_INDEX["error_saturation"], A_INDEX["derivative_saturation"], A_INDEX["derivative_mode"]
-A_ACC, A_MERR, A_CMP, A_BQF = A_INDEX["accumulator"], A_INDEX["motion_error"], A_INDEX["error_limit_compare"], A_INDEX["biquad_format"]
+A_ESAT, A_DSAT, A_DMODE = (
+    A_INDEX["error_saturation"],
+    A_INDEX["derivative_saturation"],
+    A_INDEX["derivative_mode"],
+)
+A_ACC, A_MERR, A_CMP, A_BQF = (
+    A_INDEX["accumulator"],
+    A_INDEX["motion_error"],
+    A_INDEX["error_limit_compare"],
+    A_INDEX["biquad_format"],
+)
 
 S16_LO, S16_HI = -(2**15), 2**15 - 1
 S32_LO, S32_HI = -(2**31), 2**31 - 1
@@ -71,7 +84,13 @@ def _biquad(state, base, p, pbase, x, frac, trunc):
     x2 = state[base + 1]
     y1 = state[base + 2]
     y2 = state[base + 3]
-    acc = p[pbase + 1] * x + p[pbase + 2] * x1 + p[pbase + 3] * x2 - p[pbase + 4] * y1 - p[pbase + 5] * y2
+    acc = (
+        p[pbase + 1] * x
+        + p[pbase + 2] * x1
+        + p[pbase + 3] * x2
+        - p[pbase + 4] * y1
+        - p[pbase + 5] * y2
+    )
     w = _clamp(_shr(acc, frac, trunc), S32_LO, S32_HI)
     state[base] = x
     state[base + 1] = x1

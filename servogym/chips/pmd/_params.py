@@ -57,12 +57,36 @@ class PMDChipModel:
 CHIP_MODELS: dict[str, PMDChipModel] = {
     m.name: m
     for m in [
-        PMDChipModel("MC2100", "Navigator", "DC brush servo, 1-4 axes", 4, 154, 154, False, "navigator"),
-        PMDChipModel("MC2300", "Navigator", "brushless DC servo, 1-4 axes", 4, 154, 154, False, "navigator"),
-        PMDChipModel("MC2800", "Navigator", "DC brush and brushless servo, 1-4 axes", 4, 154, 154, False, "navigator"),
+        PMDChipModel(
+            "MC2100", "Navigator", "DC brush servo, 1-4 axes", 4, 154, 154, False, "navigator"
+        ),
+        PMDChipModel(
+            "MC2300", "Navigator", "brushless DC servo, 1-4 axes", 4, 154, 154, False, "navigator"
+        ),
+        PMDChipModel(
+            "MC2800",
+            "Navigator",
+            "DC brush and brushless servo, 1-4 axes",
+            4,
+            154,
+            154,
+            False,
+            "navigator",
+        ),
         PMDChipModel("MC3110", "Pilot", "DC brush servo, 1 axis", 1, 154, 154, False, "navigator"),
-        PMDChipModel("MC3310", "Pilot", "brushless DC servo, 1 axis", 1, 154, 154, False, "navigator"),
-        PMDChipModel("MC58000", "Magellan", "DC brush, brushless and step servo, 1-4 axes", 4, 52, 52, True, "magellan"),
+        PMDChipModel(
+            "MC3310", "Pilot", "brushless DC servo, 1 axis", 1, 154, 154, False, "navigator"
+        ),
+        PMDChipModel(
+            "MC58000",
+            "Magellan",
+            "DC brush, brushless and step servo, 1-4 axes",
+            4,
+            52,
+            52,
+            True,
+            "magellan",
+        ),
     ]
 }
 
@@ -193,30 +217,103 @@ A_INDEX: dict[str, int] = {name: i for i, name in enumerate(ASSUMPTION_CHOICES)}
 # --------------------------------------------------------------------------------------
 
 _FILTER_SPECS = [
-    ParamSpec("kp", 0, U16_MAX, 100, "u16 (15 bits used)", log=True, unit="gain",
-              doc="Proportional gain"),
-    ParamSpec("ki", 0, U16_MAX, 80, "u16 (15 bits used)", log=True, unit="gain",
-              doc="Integral gain; the term is ki * integral >> 8 (PMD-A2)"),
-    ParamSpec("kd", 0, U16_MAX, 400, "u16 (15 bits used)", log=True, unit="gain",
-              doc="Derivative gain"),
-    ParamSpec("kvff", 0, U16_MAX, 0, "u16 (15 bits used)", log=True, unit="gain",
-              doc="Velocity feed-forward gain on the commanded velocity"),
-    ParamSpec("kaff", 0, U16_MAX, 0, "u16 (15 bits used)", log=True, unit="gain",
-              doc="Acceleration feed-forward gain on the commanded acceleration"),
-    ParamSpec("kout", 0, U16_MAX, 13107, "u16 (15 bits used)", log=True, unit="1/65536",
-              doc="Output scale: the filter result is multiplied by kout/65536"),
-    ParamSpec("integration_limit", 0, U31_MAX, 10000, "u32 (31 bits used)", log=True,
-              unit="counts*cycles", doc="Bound on the magnitude of the accumulated error"),
-    ParamSpec("derivative_time", 1, U16_MAX, 10, "u16 (15 bits used)", log=True,
-              unit="cycles", doc="Derivative sampled every derivative_time cycles, held between",
-              source="C"),
-    ParamSpec("bias", S16_MIN, S16_MAX, 0, "s16", unit="motor command",
-              doc="DC motor offset added to the filter output"),
-    ParamSpec("motor_limit", 0, U16_MAX, U16_MAX, "u16 (15 bits used)", tunable=False,
-              unit="motor command", doc="Bound on the magnitude of the motor command"),
-    ParamSpec("position_error_limit", 0, U31_MAX, 32767, "u32 (31 bits used)", tunable=False,
-              unit="counts", doc="Motion error when |error| exceeds it (PMD-A10, PMD-A11)",
-              source="A"),
+    ParamSpec(
+        "kp", 0, U16_MAX, 100, "u16 (15 bits used)", log=True, unit="gain", doc="Proportional gain"
+    ),
+    ParamSpec(
+        "ki",
+        0,
+        U16_MAX,
+        80,
+        "u16 (15 bits used)",
+        log=True,
+        unit="gain",
+        doc="Integral gain; the term is ki * integral >> 8 (PMD-A2)",
+    ),
+    ParamSpec(
+        "kd", 0, U16_MAX, 400, "u16 (15 bits used)", log=True, unit="gain", doc="Derivative gain"
+    ),
+    ParamSpec(
+        "kvff",
+        0,
+        U16_MAX,
+        0,
+        "u16 (15 bits used)",
+        log=True,
+        unit="gain",
+        doc="Velocity feed-forward gain on the commanded velocity",
+    ),
+    ParamSpec(
+        "kaff",
+        0,
+        U16_MAX,
+        0,
+        "u16 (15 bits used)",
+        log=True,
+        unit="gain",
+        doc="Acceleration feed-forward gain on the commanded acceleration",
+    ),
+    ParamSpec(
+        "kout",
+        0,
+        U16_MAX,
+        13107,
+        "u16 (15 bits used)",
+        log=True,
+        unit="1/65536",
+        doc="Output scale: the filter result is multiplied by kout/65536",
+    ),
+    ParamSpec(
+        "integration_limit",
+        0,
+        U31_MAX,
+        10000,
+        "u32 (31 bits used)",
+        log=True,
+        unit="counts*cycles",
+        doc="Bound on the magnitude of the accumulated error",
+    ),
+    ParamSpec(
+        "derivative_time",
+        1,
+        U16_MAX,
+        10,
+        "u16 (15 bits used)",
+        log=True,
+        unit="cycles",
+        doc="Derivative sampled every derivative_time cycles, held between",
+        source="C",
+    ),
+    ParamSpec(
+        "bias",
+        S16_MIN,
+        S16_MAX,
+        0,
+        "s16",
+        unit="motor command",
+        doc="DC motor offset added to the filter output",
+    ),
+    ParamSpec(
+        "motor_limit",
+        0,
+        U16_MAX,
+        U16_MAX,
+        "u16 (15 bits used)",
+        tunable=False,
+        unit="motor command",
+        doc="Bound on the magnitude of the motor command",
+    ),
+    ParamSpec(
+        "position_error_limit",
+        0,
+        U31_MAX,
+        32767,
+        "u32 (31 bits used)",
+        tunable=False,
+        unit="counts",
+        doc="Motion error when |error| exceeds it (PMD-A10, PMD-A11)",
+        source="A",
+    ),
 ]
 
 
@@ -224,15 +321,33 @@ def _biquad_specs(stage: int) -> list[ParamSpec]:
     p = f"biquad{stage}_"
     coef = dict(width="s16", unit="1/2^14 (PMD-A12)", source="A", tunable=False)
     return [
-        ParamSpec(p + "enable", 0, 1, 0, "u16 flag", tunable=False, unit="flag",
-                  doc=f"Biquad stage {stage} on (1) or bypassed (0)", source="C"),
+        ParamSpec(
+            p + "enable",
+            0,
+            1,
+            0,
+            "u16 flag",
+            tunable=False,
+            unit="flag",
+            doc=f"Biquad stage {stage} on (1) or bypassed (0)",
+            source="C",
+        ),
         ParamSpec(p + "b0", S16_MIN, S16_MAX, 16384, doc="Numerator coefficient b0", **coef),
         ParamSpec(p + "b1", S16_MIN, S16_MAX, 0, doc="Numerator coefficient b1", **coef),
         ParamSpec(p + "b2", S16_MIN, S16_MAX, 0, doc="Numerator coefficient b2", **coef),
         ParamSpec(p + "a1", S16_MIN, S16_MAX, 0, doc="Denominator coefficient a1", **coef),
         ParamSpec(p + "a2", S16_MIN, S16_MAX, 0, doc="Denominator coefficient a2", **coef),
-        ParamSpec(p + "k", 0, U16_MAX, 16384, "u16 (15 bits used)", tunable=False,
-                  unit="1/2^14 (PMD-A12)", doc="Stage output gain", source="A"),
+        ParamSpec(
+            p + "k",
+            0,
+            U16_MAX,
+            16384,
+            "u16 (15 bits used)",
+            tunable=False,
+            unit="1/2^14 (PMD-A12)",
+            doc="Stage output gain",
+            source="A",
+        ),
     ]
 
 
@@ -253,8 +368,15 @@ def parameter_space(model: str | PMDChipModel) -> ParameterSpace:
     """The legal registers of one PMD chip model (biquads only on MC58000)."""
     m = model if isinstance(model, PMDChipModel) else get_model(model)
     sample = ParamSpec(
-        "sample_time_us", m.min_sample_time_us, 65535, m.sample_time_us, "u16",
-        tunable=False, unit="us", doc="Servo period for one enabled axis", source="A",
+        "sample_time_us",
+        m.min_sample_time_us,
+        65535,
+        m.sample_time_us,
+        "u16",
+        tunable=False,
+        unit="us",
+        doc="Servo period for one enabled axis",
+        source="A",
     )
     specs = [*_FILTER_SPECS, sample]
     if m.has_biquads:

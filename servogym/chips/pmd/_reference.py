@@ -35,7 +35,7 @@ def sat32(x: int) -> int:
 
 
 def shift_right(x: int, n: int, rounding: str) -> int:
-    """Divide by ``2**n``: ``"floor"`` is an arithmetic shift, ``"trunc"`` rounds toward 0 (PMD-A1)."""
+    """Divide by ``2**n``: ``"floor"`` shifts arithmetically, ``"trunc"`` rounds to 0 (PMD-A1)."""
     if rounding == "floor" or x >= 0:
         return x >> n
     return -((-x) >> n)
@@ -165,3 +165,10 @@ class PMDReferenceFilter:
 
         self.cycle = n + 1
         return command
+
+    def run(self, commanded, actual, velocity, acceleration) -> list[int]:
+        """Run :meth:`step` over equal-length sequences; return the motor commands."""
+        return [
+            self.step(int(c), int(x), int(v), int(a))
+            for c, x, v, a in zip(commanded, actual, velocity, acceleration, strict=True)
+        ]
