@@ -311,7 +311,7 @@ _FILTER_SPECS = [
         "u32 (31 bits used)",
         tunable=False,
         unit="counts",
-        doc="Motion error when |error| exceeds it (PMD-A10, PMD-A11)",
+        doc="Motion error when the error magnitude exceeds it (PMD-A10, PMD-A11)",
         source="A",
     ),
 ]

@@ -1,0 +1,54 @@
+"""docs/chips/pmd.md states the same models, ranges, defaults and assumptions as the code."""
+
+from pathlib import Path
+
+import pytest
+
+from servogym.chips.pmd import CHIP_MODELS, parameter_space
+from servogym.chips.pmd._params import ASSUMPTION_CHOICES, ASSUMPTION_IDS
+
+DOC = (Path(__file__).parents[2] / "docs" / "chips" / "pmd.md").read_text()
+
+
+def rows(first_cell: str) -> list[list[str]]:
+    out = []
+    for line in DOC.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if line.startswith("|") and cells[0] == first_cell:
+            out.append(cells)
+    return out
+
+
+@pytest.mark.parametrize("model", sorted(CHIP_MODELS))
+def test_model_table(model):
+    m = CHIP_MODELS[model]
+    (row,) = rows(model)
+    assert row[1:] == [
+        m.line,
+        m.description,
+        str(m.n_axes),
+        str(m.sample_time_us),
+        str(m.min_sample_time_us),
+        "yes" if m.has_biquads else "no",
+        m.host_interface,
+    ]
+
+
+@pytest.mark.parametrize("name", list(parameter_space("MC58000")))
+def test_register_table(name):
+    s = parameter_space("MC58000")[name]
+    (row,) = rows(f"`{name}`")
+    if name == "sample_time_us":
+        assert row[2:4] == ["model minimum .. 65535", "model default"]
+        assert all(parameter_space(m)[name].high == 65535 for m in CHIP_MODELS)
+    else:
+        assert row[2:4] == [f"{s.low} .. {s.high}", str(s.default)]
+    assert row[1] == s.width and row[6:] == [s.unit, s.source, s.doc]
+    assert row[4:6] == ["yes" if s.log else "no", "yes" if s.tunable else "no"]
+
+
+@pytest.mark.parametrize("name", list(ASSUMPTION_CHOICES))
+def test_assumption_table(name):
+    (row,) = rows(ASSUMPTION_IDS[name])
+    default, *alternatives = ASSUMPTION_CHOICES[name]
+    assert row[1:4] == [f"`{name}`", f"`{default}`", ", ".join(f"`{a}`" for a in alternatives)]
