@@ -31,12 +31,15 @@ def test_model_table(model):
         str(m.min_sample_time_us),
         "yes" if m.has_biquads else "no",
         m.host_interface,
+        str(m.kout_max),
     ]
+    assert parameter_space(model)["kout"].high == m.kout_max
 
 
 @pytest.mark.parametrize("name", list(parameter_space("MC58000")))
 def test_register_table(name):
-    s = parameter_space("MC58000")[name]
+    navigator = parameter_space("MC2100")
+    s = navigator[name] if name in navigator else parameter_space("MC58000")[name]
     (row,) = rows(f"`{name}`")
     if name == "sample_time_us":
         assert row[2:4] == ["model minimum .. 65535", "model default"]

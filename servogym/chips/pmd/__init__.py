@@ -1,5 +1,13 @@
 """PMD Navigator / Pilot / Magellan servo filter (MC2100 ... MC58000), per docs/chips/pmd.md."""
 
+from servogym.chips.pmd._export import (
+    FORMATS,
+    ParamFile,
+    export,
+    from_json,
+    import_params,
+    to_json,
+)
 from servogym.chips.pmd._params import (
     CHIP_MODELS,
     FIELDS,
@@ -14,10 +22,16 @@ from servogym.chips.pmd._params import (
 __all__ = [
     "CHIP_MODELS",
     "FIELDS",
+    "FORMATS",
     "SPEC_VERSION",
     "PMDAssumptions",
     "PMDChipModel",
     "PMDParams",
+    "ParamFile",
+    "export",
+    "from_json",
     "get_model",
+    "import_params",
     "parameter_space",
+    "to_json",
 ]

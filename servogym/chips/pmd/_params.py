@@ -37,6 +37,8 @@ class PMDChipModel:
         host_interface: ``"navigator"`` (one Set command per register, opcodes of the
             Navigator/Pilot family) or ``"magellan"`` (``SetPositionLoop`` with parameter
             numbers).
+        kout_max: Largest legal Kout: 32767 in the Navigator/Pilot manual's table [M];
+            65535 on Magellan, whose public C-Motion code writes PositionLoopKout 65535 [C].
     """
 
     name: str
@@ -47,6 +49,7 @@ class PMDChipModel:
     min_sample_time_us: int
     has_biquads: bool
     host_interface: str
+    kout_max: int = 32767
 
     family: ClassVar[str] = "pmd"
 
@@ -86,6 +89,7 @@ CHIP_MODELS: dict[str, PMDChipModel] = {
             52,
             True,
             "magellan",
+            kout_max=65535,
         ),
     ]
 }
@@ -378,7 +382,14 @@ def parameter_space(model: str | PMDChipModel) -> ParameterSpace:
         doc="Servo period for one enabled axis",
         source="A",
     )
-    specs = [*_FILTER_SPECS, sample]
+    specs = list(_FILTER_SPECS)
+    if m.kout_max != U16_MAX:
+        i = [s.name for s in specs].index("kout")
+        specs[i] = dataclasses.replace(
+            specs[i], high=m.kout_max, width="u16", source="C",
+            doc=specs[i].doc + " (65535 on Magellan, from its C-Motion code)",
+        )  # fmt: skip
+    specs.append(sample)
     if m.has_biquads:
         specs += _BIQUAD_SPECS
     return ParameterSpace(m.name, specs)

@@ -1,0 +1,1202 @@
+"""Export and import of PMD parameter sets in the forms the hardware and its tools take.
+
+Three formats; each imports back to the identical :class:`PMDParams`:
+
+* ``"json"``: a parameter file with provenance (chip model, spec version, assumptions,
+  creation time, servogym version, optional metrics and notes).
+* ``"cmotion"``: a C snippet of C-Motion calls, ``PMDSetKp(&hAxis1, 100);`` on
+  Navigator/Pilot and ``PMDSetPositionLoop(&hAxis1, PMDPositionLoopKp, 100);`` on Magellan.
+* ``"host"``: the instruction stream a host sends: opcode, command name, axis and 16-bit
+  data words (32-bit values high word first), as :class:`HostCommand` records or as text,
+  one command a line (``0x25 SetKp axis=1 data=0x0064``).
+
+Every export validates the set first and refuses an illegal one with the parameter, the
+value and the legal range; nothing is clamped or truncated. Where the opcodes, call names
+and word order come from is in ``docs/chips/pmd-export.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import difflib
+import json
+import re
+import warnings
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from servogym import __version__
+from servogym.chips._space import ParameterError
+from servogym.chips.pmd._params import (
+    ASSUMPTION_CHOICES,
+    ASSUMPTION_IDS,
+    CHIP_MODELS,
+    SPEC_VERSION,
+    PMDAssumptions,
+    PMDChipModel,
+    PMDParams,
+    get_model,
+    parameter_space,
+)
+
+__all__ = [
+    "FILE_EXTENSIONS",
+    "FILE_FORMAT",
+    "FILE_FORMAT_VERSION",
+    "FORMATS",
+    "MAGELLAN_POSITION_LOOP",
+    "HostCommand",
+    "ParamFile",
+    "export",
+    "from_cmotion",
+    "from_host_commands",
+    "from_host_text",
+    "from_json",
+    "host_commands_to_text",
+    "host_text_to_commands",
+    "import_params",
+    "read_header",
+    "to_cmotion",
+    "to_host_commands",
+    "to_host_text",
+    "to_json",
+]
+
+FORMATS: tuple[str, ...] = ("json", "cmotion", "host")
+"""The export formats, in the order :func:`export` documents them."""
+
+FILE_EXTENSIONS: dict[str, str] = {"json": ".json", "cmotion": ".c", "host": ".txt"}
+"""Suggested file extension of each format."""
+
+FILE_FORMAT = "servogym-params"
+"""Value of the ``format`` key of a JSON parameter file."""
+
+FILE_FORMAT_VERSION = 1
+"""Version of the JSON parameter-file layout this module writes and reads."""
+
+CHIP_FAMILY = "pmd"
+
+# --------------------------------------------------------------------------------------
+# Command tables. Opcodes, call names and data widths: see docs/chips/pmd-export.md.
+# --------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class _Command:
+    """One Set command: host name, opcode, the register it writes, its data width."""
+
+    name: str
+    opcode: int
+    register: str
+    width: str  # "u16", "s16", "u32" or "s32"
+
+    @property
+    def call(self) -> str:
+        return "PMD" + self.name
+
+
+_N_WORDS = {"u16": 1, "s16": 1, "u32": 2, "s32": 2}
+
+# Navigator / Pilot: one command per register, in the order they are exported.
+_NAVIGATOR_COMMANDS: tuple[_Command, ...] = (
+    _Command("SetKp", 0x25, "kp", "u16"),
+    _Command("SetKi", 0x26, "ki", "u16"),
+    _Command("SetKd", 0x27, "kd", "u16"),
+    _Command("SetKvff", 0x2B, "kvff", "u16"),
+    _Command("SetKaff", 0x93, "kaff", "u16"),
+    _Command("SetIntegrationLimit", 0x95, "integration_limit", "u32"),
+    _Command("SetDerivativeTime", 0x9C, "derivative_time", "u16"),
+    _Command("SetKout", 0x9E, "kout", "u16"),
+    _Command("SetMotorBias", 0x0F, "bias", "s16"),
+    _Command("SetMotorLimit", 0x06, "motor_limit", "u16"),
+    _Command("SetPositionErrorLimit", 0x97, "position_error_limit", "u32"),
+    _Command("SetSampleTime", 0x38, "sample_time_us", "u16"),
+)
+
+# Magellan: the filter goes through SetPositionLoop (below); these registers keep their own
+# commands. SetSampleTime is 0x3B with a 32-bit argument on Magellan.
+_MAGELLAN_COMMANDS: tuple[_Command, ...] = (
+    _Command("SetMotorBias", 0x0F, "bias", "s16"),
+    _Command("SetMotorLimit", 0x06, "motor_limit", "u16"),
+    _Command("SetPositionErrorLimit", 0x97, "position_error_limit", "u32"),
+    _Command("SetSampleTime", 0x3B, "sample_time_us", "u32"),
+)
+
+_SET_POSITION_LOOP = "SetPositionLoop"
+_SET_POSITION_LOOP_OPCODE = 0x67
+_UPDATE = "Update"
+_UPDATE_OPCODE = 0x1A
+
+_BIQUAD_PARTS = (
+    ("Enable", "enable"),
+    ("B0", "b0"),
+    ("B1", "b1"),
+    ("B2", "b2"),
+    ("A1", "a1"),
+    ("A2", "a2"),
+    ("K", "k"),
+)
+
+MAGELLAN_POSITION_LOOP: tuple[tuple[int, str, str], ...] = (
+    (0, "PMDPositionLoopKp", "kp"),
+    (1, "PMDPositionLoopKi", "ki"),
+    (2, "PMDPositionLoopIlimit", "integration_limit"),
+    (3, "PMDPositionLoopKd", "kd"),
+    (4, "PMDPositionLoopDerivativeTime", "derivative_time"),
+    (5, "PMDPositionLoopKout", "kout"),
+    (6, "PMDPositionLoopKvff", "kvff"),
+    (7, "PMDPositionLoopKaff", "kaff"),
+    *(
+        (8 + 7 * (stage - 1) + i, f"PMDPositionLoopBiquad{stage}{suffix}", f"biquad{stage}_{field}")
+        for stage in (1, 2)
+        for i, (suffix, field) in enumerate(_BIQUAD_PARTS)
+    ),
+)
+"""Magellan ``SetPositionLoop`` parameters: (number, C-Motion enum name, register)."""
+
+_LOOP_BY_NUMBER = {n: (enum, reg) for n, enum, reg in MAGELLAN_POSITION_LOOP}
+_LOOP_BY_ENUM = {enum: (n, reg) for n, enum, reg in MAGELLAN_POSITION_LOOP}
+_LOOP_BY_REGISTER = {reg: (n, enum) for n, enum, reg in MAGELLAN_POSITION_LOOP}
+
+
+def _commands_for(chip: PMDChipModel) -> tuple[_Command, ...]:
+    if chip.host_interface == "navigator":
+        return _NAVIGATOR_COMMANDS
+    if chip.host_interface == "magellan":
+        return _MAGELLAN_COMMANDS
+    raise ParameterError(
+        f"host_interface must be 'navigator' or 'magellan' to export; "
+        f"got host_interface={chip.host_interface!r} for {chip.name}."
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Step:
+    """One Set command of an export, with the value it carries."""
+
+    name: str
+    opcode: int
+    register: str
+    width: str
+    value: int
+    loop: int | None = None  # SetPositionLoop parameter number (Magellan)
+
+
+def _steps(p: PMDParams) -> list[_Step]:
+    """The Set commands that load ``p``, in export order (Update not included)."""
+    chip = p.chip
+    space = p.space
+    steps = []
+    if chip.host_interface == "magellan":
+        for number, _enum, reg in MAGELLAN_POSITION_LOOP:
+            if reg in space:  # biquads only on models that have them
+                steps.append(
+                    _Step(
+                        _SET_POSITION_LOOP,
+                        _SET_POSITION_LOOP_OPCODE,
+                        reg,
+                        "s32",
+                        getattr(p, reg),
+                        number,
+                    )
+                )
+    for c in _commands_for(chip):
+        steps.append(_Step(c.name, c.opcode, c.register, c.width, getattr(p, c.register)))
+    return steps
+
+
+# --------------------------------------------------------------------------------------
+# Words
+# --------------------------------------------------------------------------------------
+
+_WIDTH_RANGE = {
+    "u16": (0, 0xFFFF),
+    "s16": (-0x8000, 0x7FFF),
+    "u32": (0, 0xFFFF_FFFF),
+    "s32": (-0x8000_0000, 0x7FFF_FFFF),
+}
+
+
+def _encode(value: int, width: str, register: str) -> tuple[int, ...]:
+    """``value`` as 16-bit words, two's complement, high word first."""
+    low, high = _WIDTH_RANGE[width]
+    if not low <= value <= high:  # cannot happen for a validated set; never truncate
+        raise ParameterError(
+            f"{register} must fit the command's {width} argument ({low} <= {register} <= "
+            f"{high}); got {register}={value}."
+        )
+    if _N_WORDS[width] == 1:
+        return (value & 0xFFFF,)
+    v = value & 0xFFFF_FFFF
+    return (v >> 16, v & 0xFFFF)
+
+
+def _decode(words: Sequence[int], width: str) -> int:
+    """The inverse of :func:`_encode`."""
+    if _N_WORDS[width] == 1:
+        v = words[0]
+        return v - 0x1_0000 if width == "s16" and v & 0x8000 else v
+    v = (words[0] << 16) | words[1]
+    return v - 0x1_0000_0000 if width == "s32" and v & 0x8000_0000 else v
+
+
+# --------------------------------------------------------------------------------------
+# Shared checks
+# --------------------------------------------------------------------------------------
+
+
+def _legal_params(params: PMDParams | Mapping[str, Any]) -> PMDParams:
+    """Validate ``params`` again (a mapping is built through :meth:`PMDParams.from_dict`)."""
+    if isinstance(params, PMDParams):
+        return PMDParams(**{f.name: getattr(params, f.name) for f in dataclasses.fields(params)})
+    if isinstance(params, Mapping):
+        return PMDParams.from_dict(params)
+    raise ParameterError(
+        f"params must be a PMDParams or a mapping of register names to values; "
+        f"got params of type {type(params).__name__}."
+    )
+
+
+def _legal_assumptions(assumptions: PMDAssumptions | Mapping[str, str] | None) -> PMDAssumptions:
+    if assumptions is None:
+        return PMDAssumptions()
+    if isinstance(assumptions, PMDAssumptions):
+        return assumptions
+    if isinstance(assumptions, Mapping):
+        _check_assumption_names(assumptions, "assumptions", require_all=False)
+        return PMDAssumptions(**assumptions)
+    raise ParameterError(
+        f"assumptions must be a PMDAssumptions, a mapping of assumption names or None; "
+        f"got assumptions of type {type(assumptions).__name__}."
+    )
+
+
+def _check_assumption_names(values: Mapping[str, Any], where: str, *, require_all: bool) -> None:
+    names = list(ASSUMPTION_CHOICES)
+    for name in values:
+        if name not in ASSUMPTION_CHOICES:
+            close = difflib.get_close_matches(str(name), names, n=3)
+            hint = f" Did you mean {', '.join(close)}?" if close else ""
+            raise ParameterError(
+                f"{where} has an unknown assumption {name!r}; the assumptions are "
+                f"{', '.join(names)}.{hint}"
+            )
+    if require_all:
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise ParameterError(
+                f"{where} must give every assumption so the behaviour is pinned down; "
+                f"missing {', '.join(missing)}."
+            )
+
+
+def _check_axis(chip: PMDChipModel, axis: Any, where: str = "") -> int:
+    at = f"{where}: " if where else ""
+    if isinstance(axis, bool) or not isinstance(axis, int | np.integer):
+        raise ParameterError(
+            f"{at}axis must be an integer with 1 <= axis <= {chip.n_axes} ({chip.name}); "
+            f"got axis={axis!r} of type {type(axis).__name__}."
+        )
+    if not 1 <= axis <= chip.n_axes:
+        raise ParameterError(
+            f"{at}axis must satisfy 1 <= axis <= {chip.n_axes} ({chip.name} has "
+            f"{chip.n_axes} axis{'es' if chip.n_axes > 1 else ''}); got axis={int(axis)}."
+        )
+    return int(axis)
+
+
+def _chip(model: str | PMDChipModel) -> PMDChipModel:
+    return model if isinstance(model, PMDChipModel) else get_model(model)
+
+
+def _resolve_model(
+    model: str | PMDChipModel | None, header: Mapping[str, Any], what: str
+) -> PMDChipModel:
+    """The chip model from the argument and/or the header; they must agree."""
+    named = header.get("chip_model")
+    if model is None:
+        if named is None:
+            raise ParameterError(
+                f"the {what} names no chip model (no 'chip_model:' header comment); pass "
+                f"model=, one of {', '.join(CHIP_MODELS)}."
+            )
+        return get_model(named)
+    chip = _chip(model)
+    if named is not None and get_model(named).name != chip.name:
+        raise ParameterError(
+            f"model={chip.name!r} disagrees with the {what}'s header 'chip_model: {named}'; "
+            f"pass model={named!r}, or model=None to use the header."
+        )
+    return chip
+
+
+class _Collector:
+    """Register values read from an imported stream: each set once, each validated."""
+
+    def __init__(self, chip: PMDChipModel, describe: Callable[[str], str]) -> None:
+        self.chip = chip
+        self.space = parameter_space(chip)
+        self.describe = describe
+        self.values: dict[str, int] = {}
+        self.where: dict[str, str] = {}
+
+    def set(self, register: str, value: int, where: str) -> None:
+        if register not in self.space:
+            raise ParameterError(
+                f"{where}: {self.chip.name} has no register {register} "
+                f"(set by {self.describe(register)}); its registers are "
+                f"{', '.join(self.space)}."
+            )
+        if register in self.values:
+            raise ParameterError(
+                f"{where}: {register} is set a second time (first at "
+                f"{self.where[register]}); each register must be set exactly once so the "
+                f"imported set is unambiguous."
+            )
+        try:
+            self.values[register] = self.space[register].validate(value, context=self.chip.name)
+        except ParameterError as exc:
+            raise ParameterError(f"{where}: {exc}") from None
+        self.where[register] = where
+
+    def result(self, what: str) -> PMDParams:
+        missing = [r for r in self.space if r not in self.values]
+        if missing:
+            listed = ", ".join(f"{r} ({self.describe(r)})" for r in missing)
+            raise ParameterError(
+                f"the {what} does not set every register of {self.chip.name}; an import "
+                f"takes no defaults. Missing: {listed}."
+            )
+        return PMDParams(model=self.chip.name, **self.values)
+
+
+# --------------------------------------------------------------------------------------
+# Provenance header shared by the C-Motion and host-text formats
+# --------------------------------------------------------------------------------------
+
+
+def _header_lines(p: PMDParams, a: PMDAssumptions, axis: int, title: str) -> list[str]:
+    chip = p.chip
+    lines = [
+        f"servogym PMD parameter set, {title}",
+        f"chip_model: {chip.name}",
+        f"chip_line: {chip.line}",
+        f"host_interface: {chip.host_interface}",
+        f"spec_version: {SPEC_VERSION}",
+        f"sample_time_us: {p.sample_time_us}",
+        f"axis: {axis}",
+        f"servogym_version: {__version__}",
+    ]
+    lines += [
+        f"assumption {ASSUMPTION_IDS[name]} {name}: {value}" for name, value in a.to_dict().items()
+    ]
+    return lines
+
+
+_C_COMMENT = re.compile(r"/\*.*?\*/|//[^\n]*", re.DOTALL)
+_HEADER_KEY = re.compile(r"^[\s*#/]*([a-z_]+)\s*:\s*(\S.*?)\s*$")
+_HEADER_ASSUMPTION = re.compile(r"^[\s*#/]*assumption\s+PMD-A\d+\s+([a-z_]+)\s*:\s*(\S+)\s*$")
+
+
+def _comment_lines(text: str) -> list[str]:
+    """Lines of ``/* */`` and ``//`` comments, and lines starting with ``#``."""
+    out = []
+    for m in _C_COMMENT.finditer(text):
+        body = m.group(0)
+        body = body[2:-2] if body.startswith("/*") else body[2:]
+        out += body.splitlines()
+    out += [line for line in text.splitlines() if line.lstrip().startswith("#")]
+    return out
+
+
+def read_header(text: str) -> dict[str, Any]:
+    """The provenance header of a C-Motion snippet or host-command text.
+
+    Args:
+        text: Output of :func:`to_cmotion` or :func:`to_host_text` (possibly edited).
+
+    Returns:
+        The ``key: value`` header entries as strings (``chip_model``, ``spec_version``,
+        ``sample_time_us``, ``axis``, ...), and under ``"assumptions"`` a
+        :class:`PMDAssumptions` when the header lists them. Empty if there is no header.
+
+    Raises:
+        ParameterError: if the header lists only some assumptions, or an unknown one.
+    """
+    fields: dict[str, Any] = {}
+    assumed: dict[str, str] = {}
+    for line in _comment_lines(text):
+        m = _HEADER_ASSUMPTION.match(line)
+        if m:
+            assumed.setdefault(m.group(1), m.group(2))
+            continue
+        m = _HEADER_KEY.match(line)
+        if m:
+            fields.setdefault(m.group(1), m.group(2))
+    if assumed:
+        _check_assumption_names(assumed, "the header", require_all=True)
+        fields["assumptions"] = PMDAssumptions(**assumed)
+    return fields
+
+
+# --------------------------------------------------------------------------------------
+# Format 1: JSON parameter file
+# --------------------------------------------------------------------------------------
+
+_REQUIRED_KEYS = (
+    "format",
+    "format_version",
+    "chip_family",
+    "chip_model",
+    "sample_time_us",
+    "spec_version",
+    "assumptions",
+    "params",
+    "created",
+    "servogym_version",
+)
+_OPTIONAL_KEYS = ("metrics", "notes")
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamFile:
+    """A parameter file read by :func:`from_json`.
+
+    Attributes:
+        params: The parameter set, validated.
+        assumptions: The assumption switches the set was tuned under.
+        provenance: Every other top-level entry of the file: ``format``,
+            ``format_version``, ``chip_family``, ``chip_model``, ``sample_time_us``,
+            ``spec_version``, ``created``, ``servogym_version`` and, when present,
+            ``metrics`` and ``notes``.
+    """
+
+    params: PMDParams
+    assumptions: PMDAssumptions
+    provenance: dict[str, Any]
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"values of type {type(obj).__name__} cannot be written as JSON")
+
+
+def _json_object(value: Any, name: str) -> dict[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ParameterError(
+            f"{name} must be a mapping (written as a JSON object); got {name} of type "
+            f"{type(value).__name__}."
+        )
+    try:
+        # Round trip now, so the file holds exactly what from_json will return.
+        return json.loads(json.dumps(dict(value), allow_nan=False, default=_json_default))
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(
+            f"{name} must hold only JSON values (str keys; str, int, finite float, bool, "
+            f"None, lists and mappings of them; NumPy scalars are converted): {exc}."
+        ) from None
+
+
+def _created_text(created: str | _dt.datetime | None) -> str:
+    if created is None:
+        return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+    if isinstance(created, _dt.datetime):
+        return created.isoformat()
+    if isinstance(created, str):
+        try:
+            _dt.datetime.fromisoformat(created)
+        except ValueError:
+            raise ParameterError(
+                f"created must be an ISO 8601 timestamp such as '2025-01-31T12:00:00+00:00'; "
+                f"got created={created!r}."
+            ) from None
+        return created
+    raise ParameterError(
+        f"created must be a datetime, an ISO 8601 string or None; got created of type "
+        f"{type(created).__name__}."
+    )
+
+
+def to_json(
+    params: PMDParams | Mapping[str, Any],
+    assumptions: PMDAssumptions | Mapping[str, str] | None = None,
+    *,
+    metrics: Mapping[str, Any] | None = None,
+    notes: Mapping[str, Any] | None = None,
+    created: str | _dt.datetime | None = None,
+) -> str:
+    """A JSON parameter file with provenance.
+
+    Args:
+        params: The parameter set (a :class:`PMDParams` or a mapping with ``model``);
+            validated again before writing.
+        assumptions: The assumption switches the set was tuned under; default all defaults.
+        metrics: Optional results to keep with the set (e.g. ``{"ise": 1.2e3}``).
+        notes: Optional free-form notes (e.g. plant, tuner, seed).
+        created: Creation time; default now (UTC). Pass a fixed value for reproducible files.
+
+    Returns:
+        The file text (UTF-8 JSON, 2-space indent, trailing newline).
+
+    Raises:
+        ParameterError: for an illegal set (naming parameter, value and range), unknown
+            assumptions, or metrics/notes that are not JSON values.
+    """
+    p = _legal_params(params)
+    a = _legal_assumptions(assumptions)
+    doc: dict[str, Any] = {
+        "format": FILE_FORMAT,
+        "format_version": FILE_FORMAT_VERSION,
+        "chip_family": CHIP_FAMILY,
+        "chip_model": p.model,
+        "sample_time_us": p.sample_time_us,
+        "spec_version": SPEC_VERSION,
+        "assumptions": a.to_dict(),
+        "params": p.to_dict(),
+        "created": _created_text(created),
+        "servogym_version": __version__,
+    }
+    if metrics is not None:
+        doc["metrics"] = _json_object(metrics, "metrics")
+    if notes is not None:
+        doc["notes"] = _json_object(notes, "notes")
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+
+def _expect(doc: Mapping[str, Any], key: str, kind: type | tuple[type, ...], what: str) -> Any:
+    value = doc[key]
+    if (isinstance(value, bool) and kind is not bool) or not isinstance(value, kind):
+        raise ParameterError(f"{key} must be {what}; got {key}={value!r}.")
+    return value
+
+
+def from_json(text: str | bytes) -> ParamFile:
+    """Read a JSON parameter file written by :func:`to_json`.
+
+    Args:
+        text: The file content.
+
+    Returns:
+        The validated parameter set, its assumptions and its provenance.
+
+    Raises:
+        ParameterError: if the text is not JSON, is not a servogym parameter file, has an
+            unknown ``format_version`` or a ``chip_family`` other than ``"pmd"``, misses or
+            adds top-level keys, lists an illegal or incomplete parameter set, or has
+            inconsistent ``chip_model`` / ``sample_time_us`` entries.
+
+    Warns:
+        UserWarning: if the file was written for another ``spec_version``.
+    """
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ParameterError(
+            f"a parameter file must be JSON; invalid JSON at line {exc.lineno} column "
+            f"{exc.colno}: {exc.msg}."
+        ) from None
+    if not isinstance(doc, dict):
+        raise ParameterError(
+            f"a parameter file must be a JSON object; got a JSON {type(doc).__name__}."
+        )
+    fmt = doc.get("format")
+    if fmt != FILE_FORMAT:
+        raise ParameterError(
+            f"format must be {FILE_FORMAT!r} (a servogym parameter file); got format={fmt!r}."
+        )
+    version = doc.get("format_version")
+    if type(version) is not int or version != FILE_FORMAT_VERSION:
+        raise ParameterError(
+            f"format_version must be {FILE_FORMAT_VERSION} (the only version servogym "
+            f"{__version__} reads); got format_version={version!r}."
+        )
+    family = doc.get("chip_family")
+    if family != CHIP_FAMILY:
+        raise ParameterError(
+            f"chip_family must be {CHIP_FAMILY!r} for a PMD parameter file; got "
+            f"chip_family={family!r}. Read other families with their own importer."
+        )
+    missing = [k for k in _REQUIRED_KEYS if k not in doc]
+    if missing:
+        raise ParameterError(f"the parameter file misses the keys {', '.join(missing)}.")
+    allowed = _REQUIRED_KEYS + _OPTIONAL_KEYS
+    unknown = [k for k in doc if k not in allowed]
+    if unknown:
+        raise ParameterError(
+            f"the parameter file has unknown keys {', '.join(map(repr, unknown))}; "
+            f"format_version {FILE_FORMAT_VERSION} allows {', '.join(allowed)}."
+        )
+
+    chip = get_model(_expect(doc, "chip_model", str, "a PMD chip model name"))
+    values = _expect(doc, "params", dict, "a JSON object of register values")
+    if values.get("model") != chip.name:
+        raise ParameterError(
+            f"params.model must equal chip_model {chip.name!r}; "
+            f"got params.model={values.get('model')!r}."
+        )
+    space = parameter_space(chip)
+    absent = [r for r in space if r not in values]
+    if absent:
+        raise ParameterError(
+            f"params must give every register of {chip.name} (an import takes no defaults); "
+            f"missing {', '.join(absent)}."
+        )
+    params = PMDParams.from_dict(values)
+    sample = _expect(doc, "sample_time_us", int, "an integer")
+    if sample != params.sample_time_us:
+        raise ParameterError(
+            f"sample_time_us must equal params.sample_time_us ({params.sample_time_us}); "
+            f"got sample_time_us={sample!r}."
+        )
+    asm = _expect(doc, "assumptions", dict, "a JSON object of assumption switches")
+    _check_assumption_names(asm, "assumptions", require_all=True)
+    assumptions = PMDAssumptions(**asm)
+
+    spec = _expect(doc, "spec_version", str, "a string")
+    created = _expect(doc, "created", str, "an ISO 8601 timestamp string")
+    _created_text(created)
+    _expect(doc, "servogym_version", str, "a string")
+    for key in _OPTIONAL_KEYS:
+        if key in doc:
+            _expect(doc, key, dict, "a JSON object")
+    if spec != SPEC_VERSION:
+        warnings.warn(
+            f"the parameter file was written for spec_version {spec!r} but this servogym "
+            f"implements {SPEC_VERSION!r}: the registers load unchanged, but the emulated "
+            f"behaviour may differ from the one its metrics were measured with. Evaluate "
+            f"the set again to refresh its metrics.",
+            UserWarning,
+            stacklevel=2,
+        )
+    provenance = {k: v for k, v in doc.items() if k not in ("params", "assumptions")}
+    return ParamFile(params=params, assumptions=assumptions, provenance=provenance)
+
+
+# --------------------------------------------------------------------------------------
+# Format 2: C-Motion C snippet
+# --------------------------------------------------------------------------------------
+
+
+def to_cmotion(
+    params: PMDParams | Mapping[str, Any],
+    axis: int = 1,
+    assumptions: PMDAssumptions | Mapping[str, str] | None = None,
+) -> str:
+    """A C snippet of C-Motion calls that loads the set into one axis.
+
+    Navigator/Pilot models get one call per register (``PMDSetKp(&hAxis1, 100);``);
+    MC58000 gets ``PMDSetPositionLoop(&hAxis1, PMDPositionLoopKp, 100);`` for the filter
+    and the biquads, then bias, motor limit, position-error limit and sample time. Every
+    snippet ends with ``PMDUpdate(&hAxis1);``. A header comment carries the provenance.
+
+    Args:
+        params: The parameter set; validated again before writing.
+        axis: Axis number, 1 .. the model's axis count; the handle is ``hAxis<axis>``.
+        assumptions: Recorded in the header; default all defaults.
+
+    Returns:
+        The snippet, newline-terminated.
+
+    Raises:
+        ParameterError: for an illegal set or axis.
+    """
+    p = _legal_params(params)
+    a = _legal_assumptions(assumptions)
+    axis = _check_axis(p.chip, axis)
+    handle = f"&hAxis{axis}"
+    head = _header_lines(p, a, axis, "C-Motion calls for one axis")
+    head += [
+        f"Needs an open PMDAxisHandle hAxis{axis} for PMDAxis{axis}",
+        "(C-Motion numbers axes from 0: PMDAxis1 = 0).",
+    ]
+    lines = ["/*", *(f" * {line}" for line in head), " */"]
+    for s in _steps(p):
+        if s.loop is not None:
+            lines.append(f"PMDSetPositionLoop({handle}, {_LOOP_BY_NUMBER[s.loop][0]}, {s.value});")
+        else:
+            lines.append(f"PMD{s.name}({handle}, {s.value});")
+    lines.append(f"PMDUpdate({handle});")
+    return "\n".join(lines) + "\n"
+
+
+_CALL = re.compile(r"^\s*([A-Za-z_]\w*)\s*\((.*)\)\s*$", re.DOTALL)
+_C_INT = re.compile(r"^([+-]?)\s*(0[xX][0-9a-fA-F]+|[0-9]+)[uUlL]*$")
+
+
+def _blank(m: re.Match[str]) -> str:
+    return re.sub(r"[^\n]", " ", m.group(0))
+
+
+def _c_int(arg: str, where: str, name: str) -> int:
+    m = _C_INT.match(arg)
+    if not m:
+        raise ParameterError(
+            f"{where}: the value of {name} must be an integer literal (decimal or 0x hex); "
+            f"got {arg!r}."
+        )
+    sign, digits = m.groups()
+    if len(digits) > 1 and digits[0] == "0" and digits[1] not in "xX":
+        raise ParameterError(
+            f"{where}: {digits} is an octal literal in C; write the value of {name} in "
+            f"decimal or 0x hex."
+        )
+    value = int(digits, 0)
+    return -value if sign == "-" else value
+
+
+def from_cmotion(text: str, model: str | PMDChipModel | None = None) -> PMDParams:
+    """Read a C-Motion snippet written by :func:`to_cmotion` (or by hand) back.
+
+    Comments, whitespace, blank statements and preprocessor lines are ignored; each
+    statement must be one of the calls :func:`to_cmotion` writes for the model, all on
+    the same axis handle, each register set exactly once (``PMDUpdate`` optional).
+
+    Args:
+        text: The snippet.
+        model: Chip model; default the header's ``chip_model:``. If both are given they
+            must agree.
+
+    Returns:
+        The parameter set.
+
+    Raises:
+        ParameterError: naming the line, for an unknown call, a call the model does not
+            take, a malformed argument, an illegal value (with its range), a second
+            set of a register, or a register left unset.
+    """
+    chip = _resolve_model(model, read_header(text), "C-Motion snippet")
+    code = _C_COMMENT.sub(_blank, text)
+    code = re.sub(r"(?m)^[ \t]*#[^\n]*", _blank, code)  # preprocessor lines
+
+    commands = {c.call: c for c in _commands_for(chip)}
+    calls = [*commands, "PMDUpdate"]
+    if chip.host_interface == "magellan":
+        calls.insert(0, "PMDSetPositionLoop")
+
+    def describe(register: str) -> str:
+        if chip.host_interface == "magellan" and register in _LOOP_BY_REGISTER:
+            return f"PMDSetPositionLoop(..., {_LOOP_BY_REGISTER[register][1]}, ...)"
+        return next((c.call for c in commands.values() if c.register == register), "no call")
+
+    collect = _Collector(chip, describe)
+    handle: tuple[str, str] | None = None
+
+    def line_at(pos: int) -> int:
+        return code.count("\n", 0, pos) + 1
+
+    pos = 0
+    for m in re.finditer(r"[^;]*;", code):
+        pos = m.end()
+        stmt = m.group(0)[:-1]
+        if not stmt.strip():
+            continue
+        start = m.start() + len(stmt) - len(stmt.lstrip())
+        where = f"line {line_at(start)}"
+        if "/*" in stmt:
+            raise ParameterError(f"{where}: unterminated /* comment.")
+        call = _CALL.match(stmt)
+        if not call:
+            raise ParameterError(
+                f"{where}: cannot read {stmt.strip()!r}; each statement must be a C-Motion "
+                f"call such as {calls[0]}(&hAxis1, ...);"
+            )
+        name, argtext = call.group(1), call.group(2)
+        args = [arg.strip() for arg in argtext.split(",")]
+        if name not in calls:
+            close = difflib.get_close_matches(name, calls, n=2)
+            hint = f" Did you mean {', '.join(close)}?" if close else ""
+            raise ParameterError(
+                f"{where}: unknown C-Motion call {name}(); the {chip.name} ({chip.line}) "
+                f"calls are {', '.join(calls)}.{hint}"
+            )
+        wanted = {"PMDUpdate": 1, "PMDSetPositionLoop": 3}.get(name, 2)
+        if len(args) != wanted or not all(args):
+            raise ParameterError(
+                f"{where}: {name} takes {wanted} argument{'s' if wanted > 1 else ''} "
+                f"(axis handle{', parameter' if wanted == 3 else ''}"
+                f"{', value' if wanted > 1 else ''}); got {argtext.strip()!r}."
+            )
+        this = re.sub(r"\s+", "", args[0])
+        if handle is None:
+            handle = (this, where)
+        elif this != handle[0]:
+            raise ParameterError(
+                f"{where}: {name} addresses {this} but {handle[1]} addresses {handle[0]}; "
+                f"a snippet loads one axis."
+            )
+        if name == "PMDUpdate":
+            continue
+        if name == "PMDSetPositionLoop":
+            param = args[1]
+            if param in _LOOP_BY_ENUM:
+                register = _LOOP_BY_ENUM[param][1]
+            else:
+                if not _C_INT.match(param):
+                    close = difflib.get_close_matches(param, list(_LOOP_BY_ENUM), n=2)
+                    hint = f" Did you mean {', '.join(close)}?" if close else ""
+                    raise ParameterError(
+                        f"{where}: unknown SetPositionLoop parameter {param!r}; the parameters "
+                        f"are {', '.join(_LOOP_BY_ENUM)} (or their numbers 0..21).{hint}"
+                    )
+                number = _c_int(param, where, "the SetPositionLoop parameter")
+                if number not in _LOOP_BY_NUMBER:
+                    raise ParameterError(
+                        f"{where}: the SetPositionLoop parameter must satisfy 0 <= parameter "
+                        f"<= 21; got parameter={number}."
+                    )
+                register = _LOOP_BY_NUMBER[number][1]
+            collect.set(register, _c_int(args[2], where, register), where)
+        else:
+            register = commands[name].register
+            collect.set(register, _c_int(args[1], where, register), where)
+    rest = code[pos:]
+    if rest.strip():
+        start = pos + len(rest) - len(rest.lstrip())
+        raise ParameterError(
+            f"line {line_at(start)}: {rest.strip()!r} does not end with ';'; each C-Motion "
+            f"call must be a statement ending in ';'."
+        )
+    if handle is None:
+        raise ParameterError("the C-Motion snippet contains no calls.")
+    return collect.result("C-Motion snippet")
+
+
+# --------------------------------------------------------------------------------------
+# Format 3: host commands
+# --------------------------------------------------------------------------------------
+
+_MAX_AXES = max(m.n_axes for m in CHIP_MODELS.values())
+
+
+@dataclasses.dataclass(frozen=True)
+class HostCommand:
+    """One instruction of the host-command stream.
+
+    Attributes:
+        opcode: Command code, 0x00..0xFF.
+        name: Command name without the ``PMD`` prefix, e.g. ``"SetKp"``.
+        axis: Axis number, 1..4 (the command word carries ``axis - 1``).
+        data: The 16-bit data words that follow the command word (0x0000..0xFFFF each);
+            32-bit values high word first, signed values two's complement.
+    """
+
+    opcode: int
+    name: str
+    axis: int
+    data: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "data", tuple(self.data))
+        for label, value, high in (("opcode", self.opcode, 0xFF), ("axis", self.axis, _MAX_AXES)):
+            low = 1 if label == "axis" else 0
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise ParameterError(
+                    f"HostCommand {label} must be an integer with {low} <= {label} <= {high}; "
+                    f"got {label}={value!r}."
+                )
+        if not isinstance(self.name, str) or not re.fullmatch(r"[A-Za-z]\w*", self.name):
+            raise ParameterError(
+                f"HostCommand name must be a command name such as 'SetKp'; got name={self.name!r}."
+            )
+        for i, word in enumerate(self.data):
+            if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= 0xFFFF:
+                raise ParameterError(
+                    f"HostCommand data words must be integers with 0 <= word <= 0xFFFF; "
+                    f"got data[{i}]={word!r}."
+                )
+
+    @property
+    def command_word(self) -> int:
+        """The 16-bit command word: opcode in bits 0-7, ``axis - 1`` from bit 8."""
+        return ((self.axis - 1) << 8) | self.opcode
+
+    @property
+    def words(self) -> tuple[int, ...]:
+        """Command word followed by the data words, as sent."""
+        return (self.command_word, *self.data)
+
+    def to_text(self) -> str:
+        """The text line, e.g. ``0x95 SetIntegrationLimit axis=1 data=0x0001 0x86A0``."""
+        line = f"0x{self.opcode:02X} {self.name} axis={self.axis}"
+        if self.data:
+            line += " data=" + " ".join(f"0x{w:04X}" for w in self.data)
+        return line
+
+
+def to_host_commands(params: PMDParams | Mapping[str, Any], axis: int = 1) -> list[HostCommand]:
+    """The host-command stream that loads the set into one axis, ending with ``Update``.
+
+    Args:
+        params: The parameter set; validated again first.
+        axis: Axis number, 1 .. the model's axis count.
+
+    Returns:
+        One :class:`HostCommand` per register (``SetPositionLoop`` per filter parameter on
+        MC58000), then ``Update``.
+
+    Raises:
+        ParameterError: for an illegal set or axis.
+    """
+    p = _legal_params(params)
+    axis = _check_axis(p.chip, axis)
+    cmds = []
+    for s in _steps(p):
+        words = _encode(s.value, s.width, s.register)
+        data = words if s.loop is None else (s.loop, *words)
+        cmds.append(HostCommand(s.opcode, s.name, axis, data))
+    cmds.append(HostCommand(_UPDATE_OPCODE, _UPDATE, axis))
+    return cmds
+
+
+def host_commands_to_text(cmds: Iterable[HostCommand]) -> str:
+    """The text form of a command list: one :meth:`HostCommand.to_text` line each."""
+    return "".join(c.to_text() + "\n" for c in cmds)
+
+
+def to_host_text(
+    params: PMDParams | Mapping[str, Any],
+    axis: int = 1,
+    assumptions: PMDAssumptions | Mapping[str, str] | None = None,
+) -> str:
+    """The text form of :func:`to_host_commands`, under a ``#`` provenance header.
+
+    Args:
+        params: The parameter set; validated again first.
+        axis: Axis number, 1 .. the model's axis count.
+        assumptions: Recorded in the header; default all defaults.
+
+    Returns:
+        The text, newline-terminated.
+    """
+    p = _legal_params(params)
+    a = _legal_assumptions(assumptions)
+    cmds = to_host_commands(p, axis)
+    head = _header_lines(p, a, cmds[0].axis, "host commands for one axis")
+    head.append("Format: opcode name axis=N data=16-bit words (32-bit values high word first).")
+    return "".join(f"# {line}\n" for line in head) + host_commands_to_text(cmds)
+
+
+_HOST_LINE = re.compile(
+    r"^(0[xX][0-9a-fA-F]{1,2})\s+([A-Za-z]\w*)\s+axis\s*=\s*([0-9]+)(?:\s+data\s*=(.*))?$"
+)
+_HOST_WORD = re.compile(r"^0[xX][0-9a-fA-F]{1,4}$")
+
+
+def _parse_host_text(text: str) -> list[tuple[str, HostCommand]]:
+    out = []
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        where = f"line {n}"
+        m = _HOST_LINE.match(line)
+        if not m:
+            raise ParameterError(
+                f"{where}: cannot read {line!r}; a command line reads "
+                f"'0x25 SetKp axis=1 data=0x0064'."
+            )
+        opcode, name, axis, data = m.groups()
+        words = []
+        for token in (data or "").replace(",", " ").split():
+            if not _HOST_WORD.match(token):
+                raise ParameterError(
+                    f"{where}: data words must be 16-bit hex such as 0x0064; got {token!r}."
+                )
+            words.append(int(token, 16))
+        try:
+            cmd = HostCommand(int(opcode, 16), name, int(axis), tuple(words))
+        except ParameterError as exc:
+            raise ParameterError(f"{where}: {exc}") from None
+        out.append((where, cmd))
+    return out
+
+
+def host_text_to_commands(text: str) -> list[HostCommand]:
+    """Parse the text form back into :class:`HostCommand` records (``#`` starts a comment).
+
+    Raises:
+        ParameterError: naming the line, for a line that is not a command.
+    """
+    return [cmd for _, cmd in _parse_host_text(text)]
+
+
+def _decode_commands(items: Sequence[tuple[str, HostCommand]], chip: PMDChipModel) -> PMDParams:
+    table = {c.name: c for c in _commands_for(chip)}
+    names = [*table, _UPDATE]
+    if chip.host_interface == "magellan":
+        names.insert(0, _SET_POSITION_LOOP)
+
+    def describe(register: str) -> str:
+        if chip.host_interface == "magellan" and register in _LOOP_BY_REGISTER:
+            return f"SetPositionLoop parameter {_LOOP_BY_REGISTER[register][0]}"
+        return next((c.name for c in table.values() if c.register == register), "no command")
+
+    collect = _Collector(chip, describe)
+    axis: tuple[int, str] | None = None
+    for where, cmd in items:
+        if cmd.name not in names:
+            close = difflib.get_close_matches(cmd.name, names, n=2)
+            hint = f" Did you mean {', '.join(close)}?" if close else ""
+            raise ParameterError(
+                f"{where}: unknown command {cmd.name} (0x{cmd.opcode:02X}); the {chip.name} "
+                f"({chip.host_interface} interface) commands are {', '.join(names)}.{hint}"
+            )
+        if axis is None:
+            axis = (_check_axis(chip, cmd.axis, where), where)
+        elif cmd.axis != axis[0]:
+            raise ParameterError(
+                f"{where}: {cmd.name} addresses axis={cmd.axis} but {axis[1]} addresses "
+                f"axis={axis[0]}; a command list loads one axis."
+            )
+        if cmd.name == _UPDATE:
+            opcode, n_words = _UPDATE_OPCODE, 0
+        elif cmd.name == _SET_POSITION_LOOP:
+            opcode, n_words = _SET_POSITION_LOOP_OPCODE, 3
+        else:
+            opcode, n_words = table[cmd.name].opcode, _N_WORDS[table[cmd.name].width]
+        if cmd.opcode != opcode:
+            raise ParameterError(
+                f"{where}: {cmd.name} has opcode 0x{opcode:02X} on {chip.name} "
+                f"({chip.host_interface} interface); got opcode 0x{cmd.opcode:02X}."
+            )
+        if len(cmd.data) != n_words:
+            raise ParameterError(
+                f"{where}: {cmd.name} takes {n_words} data word{'s' if n_words != 1 else ''}; "
+                f"got {len(cmd.data)}."
+            )
+        if cmd.name == _UPDATE:
+            continue
+        if cmd.name == _SET_POSITION_LOOP:
+            number = cmd.data[0]
+            if number not in _LOOP_BY_NUMBER:
+                raise ParameterError(
+                    f"{where}: the SetPositionLoop parameter must satisfy 0 <= parameter <= "
+                    f"21; got parameter={number}."
+                )
+            register = _LOOP_BY_NUMBER[number][1]
+            collect.set(register, _decode(cmd.data[1:], "s32"), where)
+        else:
+            c = table[cmd.name]
+            collect.set(c.register, _decode(cmd.data, c.width), where)
+    if axis is None:
+        raise ParameterError("the host-command list contains no commands.")
+    return collect.result("host-command list")
+
+
+def from_host_commands(cmds: Iterable[HostCommand], model: str | PMDChipModel) -> PMDParams:
+    """Read a structured command list (as :func:`to_host_commands` returns) back.
+
+    Args:
+        cmds: The commands; all on one axis, each register set exactly once, ``Update``
+            optional.
+        model: Chip model the commands are for.
+
+    Returns:
+        The parameter set.
+
+    Raises:
+        ParameterError: naming the command's index, for an unknown command, an opcode or
+            data length that does not match the model, an illegal value (with its range), a
+            second set of a register, or a register left unset.
+    """
+    chip = _chip(model)
+    items = []
+    for i, cmd in enumerate(cmds):
+        if not isinstance(cmd, HostCommand):
+            raise ParameterError(
+                f"command {i}: each command must be a HostCommand; got {type(cmd).__name__}."
+            )
+        items.append((f"command {i}", cmd))
+    return _decode_commands(items, chip)
+
+
+def from_host_text(text: str, model: str | PMDChipModel | None = None) -> PMDParams:
+    """Read the text form back (from :func:`to_host_text` or :func:`host_commands_to_text`).
+
+    Args:
+        text: The command lines; ``#`` starts a comment.
+        model: Chip model; default the header's ``chip_model:``. Required when the text has
+            no header (Navigator and Pilot streams are the same, so the commands alone do
+            not name the model). If both are given they must agree.
+
+    Returns:
+        The parameter set.
+
+    Raises:
+        ParameterError: naming the line, as :func:`from_host_commands` does.
+    """
+    chip = _resolve_model(model, read_header(text), "host-command text")
+    return _decode_commands(_parse_host_text(text), chip)
+
+
+# --------------------------------------------------------------------------------------
+# Dispatch
+# --------------------------------------------------------------------------------------
+
+
+def _check_format(fmt: Any) -> str:
+    if fmt in FORMATS:
+        return fmt
+    close = difflib.get_close_matches(str(fmt), FORMATS, n=1)
+    hint = f" Did you mean {close[0]!r}?" if close else ""
+    listed = ", ".join(f"{f!r} ({FILE_EXTENSIONS[f]})" for f in FORMATS)
+    raise ParameterError(f"fmt must be one of {listed}; got fmt={fmt!r}.{hint}")
+
+
+def export(params: PMDParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
+    """Export a parameter set in one of :data:`FORMATS`.
+
+    Args:
+        params: The parameter set; validated again first.
+        fmt: ``"json"`` (:func:`to_json`), ``"cmotion"`` (:func:`to_cmotion`) or
+            ``"host"`` (:func:`to_host_text`).
+        **kw: Passed to that function (``assumptions``, ``axis``, ``metrics``, ...).
+
+    Returns:
+        The exported text; :data:`FILE_EXTENSIONS` suggests a file extension.
+
+    Raises:
+        ParameterError: for an unknown format (listing the formats) or an illegal set.
+    """
+    fmt = _check_format(fmt)
+    if fmt == "json":
+        return to_json(params, **kw)
+    if fmt == "cmotion":
+        return to_cmotion(params, **kw)
+    return to_host_text(params, **kw)
+
+
+def import_params(text: str, fmt: str, model: str | PMDChipModel | None = None) -> PMDParams:
+    """Import a parameter set exported in one of :data:`FORMATS`.
+
+    Args:
+        text: The exported text.
+        fmt: ``"json"``, ``"cmotion"`` or ``"host"``.
+        model: Chip model; default the one the text names. If both are given they must
+            agree. Required for host text without a header.
+
+    Returns:
+        The parameter set (for the provenance of a JSON file use :func:`from_json`).
+
+    Raises:
+        ParameterError: for an unknown format (listing the formats) or anything the
+            format's importer rejects.
+    """
+    fmt = _check_format(fmt)
+    if fmt == "json":
+        params = from_json(text).params
+        if model is not None and _chip(model).name != params.model:
+            raise ParameterError(
+                f"model={_chip(model).name!r} disagrees with the file's chip_model "
+                f"{params.model!r}; pass model={params.model!r} or model=None."
+            )
+        return params
+    if fmt == "cmotion":
+        return from_cmotion(text, model)
+    return from_host_text(text, model)
