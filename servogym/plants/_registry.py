@@ -1,0 +1,77 @@
+"""Every plant family, registered in one place, and their JSON and Markdown descriptions."""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from typing import Any
+
+from servogym.plants._base import PlantFamily, PlantParam, _fmt
+from servogym.plants._families import ArmFamily, RotaryFamily, TwoMassFamily, VerticalAxisFamily
+
+PLANTS: dict[str, PlantFamily] = {
+    f.name: f for f in (RotaryFamily(), TwoMassFamily(), VerticalAxisFamily(), ArmFamily())
+}
+"""The plant families by name: ``"rotary"``, ``"two-mass"``, ``"vertical-axis"``, ``"arm"``."""
+
+
+def get_plant(name: str) -> PlantFamily:
+    """The plant family called ``name``.
+
+    Raises:
+        KeyError: if there is no such family; the message lists the families and the
+            closest names.
+    """
+    try:
+        return PLANTS[name]
+    except (KeyError, TypeError):
+        close = difflib.get_close_matches(str(name), list(PLANTS), n=3)
+        hint = f" Did you mean {', '.join(close)}?" if close else ""
+        raise KeyError(
+            f"no plant family {name!r}; the plant families are {', '.join(PLANTS)}.{hint}"
+        ) from None
+
+
+def describe_plants() -> list[dict[str, Any]]:
+    """A JSON-ready description of every family and parameter (for ``servogym plants``).
+
+    Returns:
+        One dict per family, in registry order: ``name``, ``description``, ``joint_unit`` and
+        ``params``, a list of dicts with the :class:`PlantParam` fields plus ``type``
+        (``"float"`` or ``"int"``).
+    """
+    return [
+        {
+            "name": family.name,
+            "description": family.description,
+            "joint_unit": family.joint_unit,
+            "params": [{**dataclasses.asdict(p), "type": p.type_name} for p in family.params],
+        }
+        for family in PLANTS.values()
+    ]
+
+
+TABLE_HEADER = (
+    "| Parameter | Type (Unit) | Nominal | Range | Distribution | Randomised | Description |"
+)
+
+
+def param_row(p: PlantParam) -> str:
+    """The Markdown table row ``docs/plants.md`` has for a parameter."""
+    cells = [
+        f"`{p.name}`",
+        f"{p.type_name} ({p.unit})",
+        _fmt(p.nominal),
+        f"{_fmt(p.low)} .. {_fmt(p.high)}",
+        p.distribution,
+        "yes" if p.randomised else "no",
+        p.doc,
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+def plant_table_markdown(family: PlantFamily) -> str:
+    """The parameter table of a family, as in ``docs/plants.md``."""
+    lines = [TABLE_HEADER, "|" + "---|" * 7]
+    lines += [param_row(p) for p in family.params]
+    return "\n".join(lines)
