@@ -1,0 +1,34 @@
+"""``mj_step`` callable from numba: the libmujoco the Python bindings load, bound once.
+
+``llvmlite.binding.load_library_permanently`` puts the library's symbols in LLVM's table, so
+compiled (and cached) code can call ``mj_step(model_address, data_address)`` directly, with no
+Python in between. ``MjModel._address`` / ``MjData._address`` are the C pointers.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+
+import mujoco
+from llvmlite import binding as llvm
+from numba import types
+
+
+def libmujoco_path() -> str:
+    """Path of the libmujoco shared library shipped inside the installed ``mujoco`` package."""
+    here = os.path.dirname(mujoco.__file__)
+    found = sorted(glob.glob(os.path.join(here, "libmujoco.so*")))
+    found += sorted(glob.glob(os.path.join(here, "libmujoco*.dylib")))
+    if not found:
+        raise ImportError(
+            f"servogym needs the libmujoco library of the mujoco package; none in {here}. "
+            "Reinstall mujoco (pip install --force-reinstall mujoco)."
+        )
+    return found[0]
+
+
+llvm.load_library_permanently(libmujoco_path())
+
+# void mj_step(const mjModel* m, mjData* d); pointers passed as machine-word integers.
+mj_step = types.ExternalFunction("mj_step", types.void(types.intp, types.intp))

@@ -1,0 +1,212 @@
+"""The servo loop: one chip axis closed around one plant, an episode per call."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from servogym.chips.pmd import PMDAssumptions, PMDParams
+from servogym.chips.pmd._kernel import new_state
+from servogym.sim._loop import FAMILY_PMD, REASONS, closed_loop
+from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics, compute_metrics
+
+TRAVEL_MARGIN = 0.01
+"""Fraction of the travel span, inside each hard stop, whose crossing counts as divergence."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Traces:
+    """Per-tick traces of one episode, all of length ``n_ticks`` run.
+
+    Attributes:
+        time_s: Time at the start of each tick (s).
+        commanded: Commanded position from the profile (counts).
+        actual: Encoder position the chip read (counts).
+        error: Position error the chip saw, ``wrap32(commanded - actual)`` (counts).
+        command: Motor command (signed 16-bit counts, 32768 = 100 %).
+        current_a: Amplifier output current (A).
+    """
+
+    time_s: np.ndarray
+    commanded: np.ndarray
+    actual: np.ndarray
+    error: np.ndarray
+    command: np.ndarray
+    current_a: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeResult:
+    """Metrics, always; traces when asked for."""
+
+    metrics: EpisodeMetrics
+    traces: Traces | None = None
+
+
+def chip_arrays(params: Any, assumptions: Any = None) -> tuple[int, np.ndarray, np.ndarray]:
+    """The chip family code, register array and assumption array the compiled loop takes."""
+    if isinstance(params, PMDParams):
+        asm = assumptions if assumptions is not None else PMDAssumptions()
+        if not isinstance(asm, PMDAssumptions):
+            raise TypeError(
+                f"assumptions for a PMD chip must be PMDAssumptions; got {type(asm).__name__}"
+            )
+        return FAMILY_PMD, params.to_array(), asm.to_array()
+    raise TypeError(f"no servo loop for chip parameter sets of type {type(params).__name__}")
+
+
+def new_chip_state(family: int) -> np.ndarray:
+    """A zeroed filter state for the chip family."""
+    if family == FAMILY_PMD:
+        return new_state()
+    raise ValueError(f"unknown chip family code {family}")
+
+
+def current_loop_alpha(bandwidth_hz: float, dt_s: float) -> float:
+    """Update factor of the first-order current loop per tick (1.0 = ideal)."""
+    if bandwidth_hz <= 0:
+        return 1.0
+    return 1.0 - math.exp(-2.0 * math.pi * bandwidth_hz * dt_s)
+
+
+class ServoLoop:
+    """A chip axis closed around a plant; :meth:`run` runs one episode in compiled code.
+
+    The MuJoCo timestep is set to the chip's servo period divided by ``substeps``. The plant
+    is edited in place between episodes (``plant.set_params``); nothing is recompiled.
+
+    Args:
+        plant: A built :class:`servogym.plants.Plant`.
+        params: The chip's parameter set (e.g. :class:`servogym.chips.pmd.PMDParams`).
+        assumptions: The chip's assumption switches; ``None`` for the defaults.
+        substeps: mj_step calls per servo tick (>= 1).
+        max_error_counts: Divergence bound on the position error (counts). ``None``: the
+            plant's whole travel in counts.
+        settle_band_counts: Band for the settling time (counts). ``None``: 0.2 % of the
+            move's distance, at least 4 counts.
+    """
+
+    def __init__(
+        self,
+        plant: Any,
+        params: Any,
+        assumptions: Any = None,
+        *,
+        substeps: int = 1,
+        max_error_counts: int | None = None,
+        settle_band_counts: float | None = None,
+    ) -> None:
+        if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+            raise ValueError(f"substeps must be an integer >= 1; got substeps={substeps!r}")
+        self.plant = plant
+        self.substeps = substeps
+        self.max_error_counts = max_error_counts
+        self.settle_band_counts = settle_band_counts
+        self.assumptions = assumptions
+        self.set_params(params)
+        self._buffers: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def set_params(self, params: Any) -> None:
+        """Use a new chip parameter set from the next episode on."""
+        self.family, self._p, self._a = chip_arrays(params, self.assumptions)
+        self.params = params
+        self.dt = params.sample_time_s
+        self.plant.set_timestep(self.dt / self.substeps)
+
+    def _buffers_for(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._buffers is None or self._buffers[0].shape[0] < n:
+            self._buffers = (np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n))
+        return self._buffers
+
+    def run(
+        self,
+        profile: Any,
+        *,
+        params: Any = None,
+        start_counts: int | None = None,
+        traces: bool = False,
+        reset: bool = True,
+    ) -> EpisodeResult:
+        """Run one episode along ``profile``.
+
+        Args:
+            profile: A chip profile (``position``, ``velocity``, ``acceleration`` int64 arrays
+                of one entry per tick).
+            params: A parameter set to use from this episode on (optional).
+            start_counts: The chip's position register at the start; defaults to the
+                profile's ``start`` attribute.
+            traces: Also return the per-tick traces.
+            reset: Reset the plant (``mj_resetData`` at its start position) and the filter
+                first. ``False`` continues from the plant's current state.
+        """
+        if params is not None:
+            self.set_params(params)
+        if reset:
+            self.plant.reset()
+        io = self.plant.io
+        pos = np.ascontiguousarray(profile.position, dtype=np.int64)
+        vel = np.ascontiguousarray(profile.velocity, dtype=np.int64)
+        acc = np.ascontiguousarray(profile.acceleration, dtype=np.int64)
+        n = pos.shape[0]
+        if n == 0:
+            raise ValueError("profile has no ticks; an episode needs at least one")
+        start = int(profile.start if start_counts is None else start_counts)
+        span = io.travel_max - io.travel_min
+        lo = io.travel_min + TRAVEL_MARGIN * span
+        hi = io.travel_max - TRAVEL_MARGIN * span
+        max_err = self.max_error_counts
+        if max_err is None:
+            max_err = min(int(span * io.counts_per_unit), 2**31 - 1)
+        out_actual, out_command, out_current = self._buffers_for(n)
+        m, d = self.plant.model, self.plant.data
+        n_run, reason = closed_loop(
+            m._address, d._address, d.qpos, d.qvel, d.ctrl,
+            io.qpos_adr, io.qvel_adr, io.ctrl_index, self.substeps,
+            float(io.counts_per_unit), float(lo), float(hi), int(max_err),
+            float(io.amp_amps_per_count), float(io.peak_current_a),
+            float(io.torque_constant_nm_per_a),
+            current_loop_alpha(io.current_bandwidth_hz, self.dt),
+            start, self.family, new_chip_state(self.family), self._p, self._a,
+            pos, vel, acc, out_actual, out_command, out_current,
+        )  # fmt: skip
+        metrics = self._metrics(pos, start, out_actual, out_command, n_run, reason)
+        tr = None
+        if traces:
+            commanded = pos[:n_run].copy()
+            actual = out_actual[:n_run].copy()
+            err = ((commanded - actual + 2**31) % 2**32) - 2**31
+            tr = Traces(
+                time_s=np.arange(n_run) * self.dt,
+                commanded=commanded,
+                actual=actual,
+                error=err,
+                command=out_command[:n_run].copy(),
+                current_a=out_current[:n_run].copy(),
+            )
+        return EpisodeResult(metrics=metrics, traces=tr)
+
+    def _metrics(self, pos, start, actual, command, n_run, reason) -> EpisodeMetrics:
+        changes = np.flatnonzero(np.diff(pos, prepend=start) != 0)
+        move_end = int(changes[-1]) if changes.size else -1
+        target = int(pos[-1])
+        distance = ((target - start + 2**31) % 2**32) - 2**31
+        direction = int(np.sign(distance)) if move_end >= 0 else 0
+        band = self.settle_band_counts
+        if band is None:
+            band = max(4.0, 0.002 * abs(distance))
+        limit = int(self.params.motor_limit)
+        vals = compute_metrics(
+            pos, actual, command, n_run, move_end, target, direction, self.dt, float(band), limit
+        )
+        return EpisodeMetrics(
+            **{name: float(v) for name, v in zip(METRIC_NAMES, vals, strict=False)},
+            settled=bool(vals[-1]),
+            diverged=reason != 0,
+            divergence_tick=n_run - 1 if reason != 0 else -1,
+            divergence_reason=REASONS[int(reason)],
+            n_ticks=int(n_run),
+            dt=self.dt,
+        )
