@@ -19,11 +19,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from servogym.chips._family import FAMILY_CODES
 from servogym.chips.pmd._kernel import S_TRIPPED, pmd_step
 from servogym.sim._ffi import mj_step
 
-# Chip family codes for the dispatch in the loop.
-FAMILY_PMD = 0
+FAMILY_PMD = FAMILY_CODES["pmd"]
 
 # Divergence reasons (EpisodeMetrics.divergence_reason).
 OK, ERROR_BOUND, TRAVEL, MOTION_ERROR, NON_FINITE = 0, 1, 2, 3, 4

@@ -8,9 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from servogym.chips.pmd import PMDAssumptions, PMDParams
-from servogym.chips.pmd._kernel import new_state
-from servogym.sim._loop import FAMILY_PMD, REASONS, closed_loop
+from servogym.chips._family import family_of
+from servogym.sim._loop import REASONS, closed_loop
 from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics, compute_metrics
 
 TRAVEL_MARGIN = 0.01
@@ -44,25 +43,6 @@ class EpisodeResult:
 
     metrics: EpisodeMetrics
     traces: Traces | None = None
-
-
-def chip_arrays(params: Any, assumptions: Any = None) -> tuple[int, np.ndarray, np.ndarray]:
-    """The chip family code, register array and assumption array the compiled loop takes."""
-    if isinstance(params, PMDParams):
-        asm = assumptions if assumptions is not None else PMDAssumptions()
-        if not isinstance(asm, PMDAssumptions):
-            raise TypeError(
-                f"assumptions for a PMD chip must be PMDAssumptions; got {type(asm).__name__}"
-            )
-        return FAMILY_PMD, params.to_array(), asm.to_array()
-    raise TypeError(f"no servo loop for chip parameter sets of type {type(params).__name__}")
-
-
-def new_chip_state(family: int) -> np.ndarray:
-    """A zeroed filter state for the chip family."""
-    if family == FAMILY_PMD:
-        return new_state()
-    raise ValueError(f"unknown chip family code {family}")
 
 
 def current_loop_alpha(bandwidth_hz: float, dt_s: float) -> float:
@@ -111,9 +91,10 @@ class ServoLoop:
 
     def set_params(self, params: Any) -> None:
         """Use a new chip parameter set from the next episode on."""
-        self.family, self._p, self._a = chip_arrays(params, self.assumptions)
+        self.chip = family_of(params)
+        self._p, self._a = self.chip.kernel_arrays(params, self.assumptions)
         self.params = params
-        self.dt = params.sample_time_s
+        self.dt = self.chip.sample_time_s(params)
         self.plant.set_timestep(self.dt / self.substeps)
 
     def _buffers_for(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -169,7 +150,7 @@ class ServoLoop:
             float(io.amp_amps_per_count), float(io.peak_current_a),
             float(io.torque_constant_nm_per_a),
             current_loop_alpha(io.current_bandwidth_hz, self.dt),
-            start, self.family, new_chip_state(self.family), self._p, self._a,
+            start, self.chip.code, self.chip.new_state(), self._p, self._a,
             pos, vel, acc, out_actual, out_command, out_current,
         )  # fmt: skip
         metrics = self._metrics(pos, start, out_actual, out_command, n_run, reason)
@@ -197,7 +178,7 @@ class ServoLoop:
         band = self.settle_band_counts
         if band is None:
             band = max(4.0, 0.002 * abs(distance))
-        limit = int(self.params.motor_limit)
+        limit = self.chip.motor_limit(self.params)
         vals = compute_metrics(
             pos, actual, command, n_run, move_end, target, direction, self.dt, float(band), limit
         )

@@ -35,3 +35,7 @@ __all__ = [
     "parameter_space",
     "to_json",
 ]
+
+from servogym.chips.pmd._family import PMD  # registers the family
+
+__all__ += ["PMD"]

@@ -1,0 +1,166 @@
+"""What every chip family provides, so sim, envs, tuners and the CLI never special-case one.
+
+A family (PMD, PMAC, Parker 6000) registers one :class:`ChipFamily` object. Chip models are
+looked up by name across families with :func:`get_chip`.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import difflib
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from servogym.chips._space import ParameterError, ParameterSpace
+
+
+@dataclasses.dataclass(frozen=True)
+class Move:
+    """A point-to-point move in encoder counts, independent of any chip's units.
+
+    Each chip family turns it into its own profile (:meth:`ChipFamily.profile`).
+
+    Attributes:
+        distance_counts: Signed move length (counts).
+        max_velocity_counts_per_s: Velocity limit (counts/s), > 0.
+        max_acceleration_counts_per_s2: Acceleration and deceleration limit (counts/s^2), > 0.
+        settle_s: Time at rest on the target after the move (s), >= 0.
+        kind: ``"trapezoidal"`` or ``"s_curve"``.
+        jerk_counts_per_s3: Jerk limit for ``"s_curve"`` (counts/s^3).
+        start_counts: Position at rest before the move (counts).
+    """
+
+    distance_counts: int
+    max_velocity_counts_per_s: float
+    max_acceleration_counts_per_s2: float
+    settle_s: float = 0.1
+    kind: str = "trapezoidal"
+    jerk_counts_per_s3: float | None = None
+    start_counts: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("max_velocity_counts_per_s", "max_acceleration_counts_per_s2"):
+            value = getattr(self, name)
+            if not value > 0:
+                raise ParameterError(f"{name} must be > 0; got {name}={value!r}.")
+        if not self.settle_s >= 0:
+            raise ParameterError(f"settle_s must be >= 0; got settle_s={self.settle_s!r}.")
+        if self.kind not in ("trapezoidal", "s_curve"):
+            raise ParameterError(
+                f"kind must be 'trapezoidal' or 's_curve'; got kind={self.kind!r}."
+            )
+        if self.kind == "s_curve" and not (self.jerk_counts_per_s3 or 0) > 0:
+            raise ParameterError(
+                "an 's_curve' move needs jerk_counts_per_s3 > 0; "
+                f"got jerk_counts_per_s3={self.jerk_counts_per_s3!r}."
+            )
+
+
+class ChipFamily(abc.ABC):
+    """One chip family: its models, parameter sets, compiled filter and profile generator.
+
+    Attributes:
+        name: Family id (``"pmd"``).
+        code: Chip family code the compiled loop dispatches on (:data:`FAMILY_CODES`).
+        models: Chip model records by name.
+        params_type: The family's parameter-set class.
+        assumptions_type: The family's assumption-switch class.
+    """
+
+    name: str
+    code: int
+    models: Mapping[str, Any]
+    params_type: type
+    assumptions_type: type
+
+    @abc.abstractmethod
+    def parameter_space(self, model: str) -> ParameterSpace:
+        """Legal registers of a chip model."""
+
+    @abc.abstractmethod
+    def make_params(self, model: str, values: Mapping[str, Any] | None = None) -> Any:
+        """A validated parameter set: the model's defaults updated with ``values``."""
+
+    @abc.abstractmethod
+    def default_assumptions(self) -> Any:
+        """The family's assumption switches at their defaults."""
+
+    @abc.abstractmethod
+    def kernel_arrays(self, params: Any, assumptions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Register array and assumption array for the compiled loop."""
+
+    @abc.abstractmethod
+    def new_state(self) -> np.ndarray:
+        """A zeroed filter state for the compiled loop."""
+
+    @abc.abstractmethod
+    def profile(self, move: Move, sample_time_s: float) -> Any:
+        """The chip's own profile for ``move``: int64 ``position``/``velocity``/
+        ``acceleration`` arrays, one entry per servo cycle, and ``start``."""
+
+    @abc.abstractmethod
+    def export(self, params: Any, fmt: str, **kw: Any) -> str:
+        """The parameter set in a hardware format (``formats``)."""
+
+    formats: tuple[str, ...] = ("json",)
+
+    def sample_time_s(self, params: Any) -> float:
+        """Servo period of a parameter set (s)."""
+        return float(params.sample_time_s)
+
+    def motor_limit(self, params: Any) -> int:
+        """Largest motor-command magnitude the set allows (counts of the 16-bit output)."""
+        return int(params.motor_limit)
+
+
+FAMILY_CODES: dict[str, int] = {"pmd": 0, "pmac": 1, "parker6k": 2}
+"""Codes the compiled servo loop dispatches on; one per family, never reused."""
+
+_FAMILIES: dict[str, ChipFamily] = {}
+
+
+def register_family(family: ChipFamily) -> ChipFamily:
+    """Add a chip family to the registry (done by each family's package on import)."""
+    _FAMILIES[family.name] = family
+    return family
+
+
+def families() -> dict[str, ChipFamily]:
+    """Every registered chip family by name."""
+    _load_builtin()
+    return dict(_FAMILIES)
+
+
+def all_models() -> dict[str, ChipFamily]:
+    """Every chip model name, mapped to its family."""
+    return {m: f for f in families().values() for m in f.models}
+
+
+def get_chip(model: str) -> tuple[ChipFamily, str]:
+    """The family and canonical name of a chip model (case-insensitive), or a clear error."""
+    models = all_models()
+    by_upper = {m.upper(): m for m in models}
+    key = by_upper.get(model.upper())
+    if key is None:
+        close = difflib.get_close_matches(model.upper(), list(by_upper), n=3)
+        hint = f" Did you mean {', '.join(by_upper[c] for c in close)}?" if close else ""
+        raise ParameterError(
+            f"unknown chip model {model!r}; known models are {', '.join(models)}.{hint}"
+        )
+    return models[key], key
+
+
+def family_of(params: Any) -> ChipFamily:
+    """The family a parameter set belongs to."""
+    for fam in families().values():
+        if isinstance(params, fam.params_type):
+            return fam
+    raise TypeError(f"{type(params).__name__} is not a parameter set of any chip family")
+
+
+def _load_builtin() -> None:
+    # Importing a family's package registers it.
+    import servogym.chips.pmd  # noqa: F401
