@@ -5,7 +5,7 @@ an argument (numba's cache freezes module globals, so gains and scales are never
 
 Per tick k (docs/simulation.md):
     1. encoder: counts = floor(qpos * counts_per_unit); the chip's actual position is
-       wrap32(counts - counts_at_start + profile_start).
+       wrap32(counts - counts_origin), with counts_origin fixed at the plant's reset.
     2. divergence checks on that reading (non-finite state, travel bound, error bound).
     3. the chip filter computes the motor command C_k (signed 16-bit).
     4. motion error latched by the chip ends the episode after this tick.
@@ -60,7 +60,8 @@ def closed_loop(
     peak_current,
     torque_constant,
     alpha,
-    start_counts,
+    counts_origin,
+    amp_state,
     family,
     state,
     p,
@@ -86,7 +87,8 @@ def closed_loop(
         peak_current: amplifier saturation (A).
         torque_constant: motor torque per amp (N*m/A); ctrl is motor torque.
         alpha: current-loop update factor in (0, 1]; >= 1 means an ideal current loop.
-        start_counts: the chip's actual-position register at the start (counts).
+        counts_origin: encoder counts at which the chip's position register reads 0.
+        amp_state: float64[1], the amplifier current carried between calls (A).
         family: chip family code (FAMILY_PMD).
         state, p, a: the chip filter's state, registers and assumption codes (int64 arrays).
         prof_pos, prof_vel, prof_acc: int64[n_ticks] profile (counts, 16.16, 16.16).
@@ -94,18 +96,17 @@ def closed_loop(
         out_current: float64[n_ticks] amplifier current trace (A).
     """
     n_ticks = prof_pos.shape[0]
-    counts0 = np.int64(np.floor(qpos[qpos_adr] * counts_per_unit))
-    start = start_counts
-    current = 0.0
+    current = amp_state[0]
     for k in range(n_ticks):
         q = qpos[qpos_adr]
         if not (np.isfinite(q) and np.isfinite(qvel[qvel_adr])):
-            out_actual[k] = out_actual[k - 1] if k > 0 else start
+            out_actual[k] = out_actual[k - 1] if k > 0 else 0
             out_command[k] = 0
             out_current[k] = current
+            amp_state[0] = current
             return k + 1, NON_FINITE
         counts = np.int64(np.floor(q * counts_per_unit))
-        actual = _wrap32(counts - counts0 + start)
+        actual = _wrap32(counts - counts_origin)
         out_actual[k] = actual
         reason = OK
         if q < travel_lo or q > travel_hi:
@@ -132,9 +133,11 @@ def closed_loop(
             current = current + (i_ref - current) * alpha
         out_current[k] = current
         if reason != OK:
+            amp_state[0] = current
             return k + 1, reason
 
         ctrl[ctrl_index] = torque_constant * current
         for _ in range(substeps):
             mj_step(m_addr, d_addr)
+    amp_state[0] = current
     return n_ticks, OK

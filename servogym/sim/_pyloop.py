@@ -25,7 +25,7 @@ def python_closed_loop(
     travel_hi: float,
     max_error_counts: int,
     alpha: float,
-    start_counts: int,
+    counts_origin: int,
     chip_filter: PMDReferenceFilter,
     prof_pos: np.ndarray,
     prof_vel: np.ndarray,
@@ -34,7 +34,6 @@ def python_closed_loop(
     """Run one episode; returns ``(n_run, reason, actual, command, current)``."""
     qpos, qvel, ctrl = data.qpos, data.qvel, data.ctrl
     cpu = float(io.counts_per_unit)
-    counts0 = math.floor(qpos[io.qpos_adr] * cpu)
     current = 0.0
     actual_tr: list[int] = []
     command_tr: list[int] = []
@@ -42,11 +41,11 @@ def python_closed_loop(
     for k in range(len(prof_pos)):
         q = float(qpos[io.qpos_adr])
         if not (math.isfinite(q) and math.isfinite(qvel[io.qvel_adr])):
-            actual_tr.append(actual_tr[-1] if actual_tr else start_counts)
+            actual_tr.append(actual_tr[-1] if actual_tr else 0)
             command_tr.append(0)
             current_tr.append(current)
             return k + 1, NON_FINITE, actual_tr, command_tr, current_tr
-        actual = wrap32(math.floor(q * cpu) - counts0 + start_counts)
+        actual = wrap32(math.floor(q * cpu) - counts_origin)
         actual_tr.append(actual)
         reason = OK
         if q < travel_lo or q > travel_hi:

@@ -88,10 +88,20 @@ class ServoLoop:
         self.assumptions = assumptions
         self.set_params(params)
         self._buffers: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._state = self.chip.new_state()
+        self._amp = np.zeros(1)
+        self._origin = 0
 
     def set_params(self, params: Any) -> None:
-        """Use a new chip parameter set from the next episode on."""
-        self.chip = family_of(params)
+        """Load a new chip parameter set, as the chip's Update does: the filter state stays.
+
+        A set of another chip family, or another servo period, also resets the state at the
+        next :meth:`run` with ``reset=True`` (the only way to change them on hardware).
+        """
+        chip = family_of(params)
+        if getattr(self, "chip", chip) is not chip:
+            self._state = chip.new_state()
+        self.chip = chip
         self._p, self._a = self.chip.kernel_arrays(params, self.assumptions)
         self.params = params
         self.dt = self.chip.sample_time_s(params)
@@ -117,24 +127,31 @@ class ServoLoop:
             profile: A chip profile (``position``, ``velocity``, ``acceleration`` int64 arrays
                 of one entry per tick).
             params: A parameter set to use from this episode on (optional).
-            start_counts: The chip's position register at the start; defaults to the
-                profile's ``start`` attribute.
+            start_counts: With ``reset``, the value the chip's position register takes at
+                the plant's start position; defaults to the profile's ``start``.
             traces: Also return the per-tick traces.
-            reset: Reset the plant (``mj_resetData`` at its start position) and the filter
-                first. ``False`` continues from the plant's current state.
+            reset: Reset the plant (``mj_resetData`` at its start position), the filter
+                state and the amplifier first. ``False`` continues from where the last
+                episode ended (the next move of a sequence): plant, filter, amplifier and the
+                encoder's origin all carry over.
         """
         if params is not None:
             self.set_params(params)
+        io = self.plant.io
         if reset:
             self.plant.reset()
-        io = self.plant.io
+            self._state[:] = 0
+            self._amp[0] = 0.0
+            start = int(profile.start if start_counts is None else start_counts)
+            q0 = self.plant.data.qpos[io.qpos_adr]
+            self._origin = int(np.floor(q0 * io.counts_per_unit)) - start
         pos = np.ascontiguousarray(profile.position, dtype=np.int64)
         vel = np.ascontiguousarray(profile.velocity, dtype=np.int64)
         acc = np.ascontiguousarray(profile.acceleration, dtype=np.int64)
         n = pos.shape[0]
         if n == 0:
             raise ValueError("profile has no ticks; an episode needs at least one")
-        start = int(profile.start if start_counts is None else start_counts)
+        start = int(profile.start)
         span = io.travel_max - io.travel_min
         lo = io.travel_min + TRAVEL_MARGIN * span
         hi = io.travel_max - TRAVEL_MARGIN * span
@@ -150,7 +167,7 @@ class ServoLoop:
             float(io.amp_amps_per_count), float(io.peak_current_a),
             float(io.torque_constant_nm_per_a),
             current_loop_alpha(io.current_bandwidth_hz, self.dt),
-            start, self.chip.code, self.chip.new_state(), self._p, self._a,
+            self._origin, self._amp, self.chip.code, self._state, self._p, self._a,
             pos, vel, acc, out_actual, out_command, out_current,
         )  # fmt: skip
         metrics = self._metrics(pos, start, out_actual, out_command, n_run, reason)
