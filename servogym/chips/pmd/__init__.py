@@ -18,6 +18,14 @@ from servogym.chips.pmd._params import (
     get_model,
     parameter_space,
 )
+from servogym.chips.pmd._profile import (
+    Profile,
+    ProfileAssumptions,
+    move,
+    s_curve,
+    trapezoidal,
+    velocity_contouring,
+)
 
 __all__ = [
     "CHIP_MODELS",
@@ -28,12 +36,18 @@ __all__ = [
     "PMDChipModel",
     "PMDParams",
     "ParamFile",
+    "Profile",
+    "ProfileAssumptions",
     "export",
     "from_json",
     "get_model",
     "import_params",
+    "move",
     "parameter_space",
+    "s_curve",
     "to_json",
+    "trapezoidal",
+    "velocity_contouring",
 ]
 
 from servogym.chips.pmd._family import PMD  # registers the family
