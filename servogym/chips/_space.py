@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 import numbers
 from collections.abc import Iterator, Mapping
 from typing import Any
@@ -17,6 +18,11 @@ from typing import Any
 
 class ParameterError(ValueError):
     """A parameter value is illegal for the chip: wrong type, out of range, or unknown."""
+
+
+ZERO_FRACTION = 0.05
+"""Share of the unit interval that maps to 0 for a log-scaled register whose low is 0."""
+_ZERO_BELOW = 2.0 * ZERO_FRACTION - 1.0  # u below this maps to 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,6 +66,53 @@ class ParamSpec:
     def range_text(self) -> str:
         """The legal range as it appears in error messages, e.g. ``0 <= kp <= 32767``."""
         return f"{self.low} <= {self.name} <= {self.high}"
+
+    def from_unit(self, u: float) -> int:
+        """Map ``u`` in [-1, 1] onto a legal value (what envs' Box actions and tuners use).
+
+        Linear registers map ``u`` evenly onto ``low..high``. Log-scaled registers map it
+        log-uniformly onto ``max(low, 1)..high``; when ``low`` is 0, the lowest
+        :data:`ZERO_FRACTION` of the interval gives 0 (the term switched off), so 0 stays
+        reachable. The result is rounded to the nearest integer, and is always legal.
+
+        Raises:
+            ParameterError: when ``u`` is not a finite number in [-1, 1].
+        """
+        if not isinstance(u, numbers.Real) or not (math.isfinite(u) and -1.0 <= u <= 1.0):
+            raise ParameterError(
+                f"the action for {self.name} must be a finite number in [-1, 1]; got {u!r}."
+            )
+        u = float(u)
+        t = (u + 1.0) / 2.0
+        if not self.log:
+            return min(self.high, max(self.low, round(self.low + t * (self.high - self.low))))
+        lo = max(self.low, 1)
+        if self.low <= 0:
+            if u < _ZERO_BELOW:
+                return self.low
+            t = (u - _ZERO_BELOW) / (1.0 - _ZERO_BELOW)
+        value = round(math.exp(math.log(lo) + t * (math.log(self.high) - math.log(lo))))
+        return min(self.high, max(lo, value))
+
+    def to_unit(self, value: int) -> float:
+        """The ``u`` in [-1, 1] that :meth:`from_unit` maps back to ``value`` (a warm start).
+
+        ``from_unit(to_unit(v)) == v`` for every legal ``v`` a log scale can resolve (on a
+        log scale, neighbouring large values may share one ``u``).
+        """
+        v = self.validate(value)
+        if self.high == self.low:
+            return -1.0
+        if not self.log:
+            t = (v - self.low) / (self.high - self.low)
+        else:
+            lo = max(self.low, 1)
+            if self.low <= 0 and v <= 0:
+                return (_ZERO_BELOW - 1.0) / 2.0
+            t = (math.log(v) - math.log(lo)) / (math.log(self.high) - math.log(lo))
+            if self.low <= 0:
+                return min(1.0, _ZERO_BELOW + t * (1.0 - _ZERO_BELOW))
+        return min(1.0, max(-1.0, 2.0 * t - 1.0))
 
     def validate(self, value: Any, *, context: str = "") -> int:
         """Return ``value`` as a Python int, or raise :class:`ParameterError`.

@@ -1,6 +1,34 @@
-"""The closed-loop servo runner (a compiled hot loop around mj_step) and response metrics."""
+"""The closed-loop servo runner (a compiled hot loop around mj_step), metrics and the cost."""
 
 from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics
 from servogym.sim._runner import EpisodeResult, ServoLoop, Traces
+from servogym.sim._scenario import (
+    COST_CAP,
+    DEFAULT_MOVES,
+    DIVERGENCE_PENALTY,
+    CostWeights,
+    Evaluation,
+    Evaluator,
+    MoveSpec,
+    Scenario,
+    move_cost,
+    robust_cost,
+)
 
-__all__ = ["METRIC_NAMES", "EpisodeMetrics", "EpisodeResult", "ServoLoop", "Traces"]
+__all__ = [
+    "COST_CAP",
+    "DEFAULT_MOVES",
+    "DIVERGENCE_PENALTY",
+    "METRIC_NAMES",
+    "CostWeights",
+    "EpisodeMetrics",
+    "EpisodeResult",
+    "Evaluation",
+    "Evaluator",
+    "MoveSpec",
+    "Scenario",
+    "ServoLoop",
+    "Traces",
+    "move_cost",
+    "robust_cost",
+]
