@@ -17,6 +17,8 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 console = Console()
+if not console.is_terminal:  # pipes and CI logs: wide enough for the parameter tables
+    console.width = 130
 
 
 def _fail(message: str) -> None:
@@ -24,37 +26,51 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            _fail(f"{option} takes NAME=VALUE; got {item!r}")
+        try:
+            out[key.strip()] = float(value)
+        except ValueError:
+            _fail(f"{option} {key}: {value!r} is not a number")
+    return out
+
+
 @app.command()
 def chips(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,
 ) -> None:
     """List chip models with every parameter's legal range and default."""
-    from servogym.chips.pmd import CHIP_MODELS, SPEC_VERSION, parameter_space
+    from servogym.chips import families
 
     out = []
-    for model in CHIP_MODELS.values():
-        out.append(
-            {
-                "family": model.family,
-                "model": model.name,
-                "line": model.line,
-                "description": model.description,
-                "sample_time_us": model.sample_time_us,
-                "spec_version": SPEC_VERSION,
-                "parameters": parameter_space(model).describe(),
-            }
-        )
+    for family in families().values():
+        for model in family.models.values():
+            out.append(
+                {
+                    "family": family.name,
+                    "model": model.name,
+                    "description": getattr(model, "description", ""),
+                    "sample_time_s": family.sample_time_s(family.make_params(model.name)),
+                    "export_formats": list(family.formats),
+                    "parameters": family.parameter_space(model.name).describe(),
+                }
+            )
     if as_json:
         typer.echo(json.dumps(out, indent=2))
         return
     for entry in out:
         table = Table(
-            title=f"{entry['model']} ({entry['family']} {entry['line']}: {entry['description']}); "
-            f"sample time {entry['sample_time_us']} us",
+            title=f"{entry['model']} ({entry['family']}: {entry['description']}); "
+            f"sample time {entry['sample_time_s'] * 1e6:g} us; "
+            f"exports {', '.join(entry['export_formats'])}",
             title_justify="left",
         )
         for col in ("parameter", "width", "legal range", "default", "unit", "tuned", "source"):
-            table.add_column(col)
+            table.add_column(col, no_wrap=col in ("parameter", "legal range"))
         for p in entry["parameters"]:
             table.add_row(
                 p["name"], p["width"], f"{p['low']} .. {p['high']}", str(p["default"]),
@@ -64,27 +80,51 @@ def chips(
 
 
 @app.command()
+def plants(
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,
+) -> None:
+    """List plant families with every parameter, its unit, nominal value and range."""
+    from servogym.plants import describe_plants
+
+    described = describe_plants()
+    if as_json:
+        typer.echo(json.dumps(described, indent=2))
+        return
+    for fam in described:
+        table = Table(title=f"{fam['name']}: {fam['description']}", title_justify="left")
+        for col in ("parameter", "unit", "nominal", "range", "sampling", "randomised"):
+            table.add_column(col, no_wrap=col == "parameter")
+        for p in fam["params"]:
+            table.add_row(
+                p["name"], p["unit"], f"{p['nominal']:g}", f"{p['low']:g} .. {p['high']:g}",
+                p["distribution"], "yes" if p["randomised"] else "no",
+            )  # fmt: skip
+        console.print(table)
+
+
+@app.command()
 def export(
     params_file: Annotated[Path, typer.Argument(help="A servogym JSON parameter file.")],
     fmt: Annotated[
-        str, typer.Option("--format", "-f", help="Output format: cmotion, host or json.")
+        str, typer.Option("--format", "-f", help="Output format (see `servogym chips`).")
     ] = "cmotion",
-    axis: Annotated[int, typer.Option(help="Axis number on the chip (1-based).")] = 1,
+    axis: Annotated[int | None, typer.Option(help="Axis or motor number on the chip.")] = None,
     out: Annotated[
         Path | None, typer.Option("--out", "-o", help="Write here instead of stdout.")
     ] = None,
 ) -> None:
     """Export a parameter file in the form the hardware takes."""
-    from servogym.chips import ParameterError
-    from servogym.chips.pmd import export as export_params
-    from servogym.chips.pmd import from_json
+    from servogym.chips import ParameterError, family_of, load_params_file
 
     try:
-        loaded = from_json(params_file.read_text())
-        kw = {"assumptions": loaded.assumptions} if fmt in ("json", "cmotion") else {}
-        if fmt != "json":
-            kw["axis"] = axis
-        text = export_params(loaded.params, fmt, **kw)
+        loaded = load_params_file(params_file.read_text())
+        family = family_of(loaded.params)
+        kw = {} if axis is None else {"axis": axis}
+        if fmt == "json":
+            kw = {}
+        if fmt in ("json", "cmotion"):
+            kw["assumptions"] = loaded.assumptions
+        text = family.export(loaded.params, fmt, **kw)
     except (ParameterError, ValueError, OSError) as exc:
         _fail(str(exc))
         return
@@ -93,6 +133,91 @@ def export(
     else:
         out.write_text(text)
         console.print(f"wrote {out}")
+
+
+@app.command()
+def simulate(
+    chip: Annotated[
+        str | None, typer.Option(help="Chip model, e.g. MC2100 (default: the params file's).")
+    ] = None,
+    plant: Annotated[str, typer.Option(help="Plant family (see `servogym plants`).")] = "rotary",
+    plant_param: Annotated[
+        list[str] | None,
+        typer.Option("--plant-param", help="Plant parameter NAME=VALUE (repeatable)."),
+    ] = None,
+    params: Annotated[
+        Path | None, typer.Option(help="A servogym JSON parameter file (default: chip defaults).")
+    ] = None,
+    move: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="DISTANCE,MAX_VELOCITY,MAX_ACCELERATION[,SETTLE_S] in the plant's joint units "
+            "(rad or m); repeatable, run in sequence. Default: the plant's out-and-back moves."
+        ),
+    ] = None,
+    substeps: Annotated[int, typer.Option(help="mj_step calls per servo tick.")] = 1,
+    out: Annotated[Path, typer.Option(help="Folder for response.png and metrics.json.")] = Path(
+        "runs/simulate"
+    ),
+    as_json: Annotated[bool, typer.Option("--json", help="Print metrics as JSON.")] = False,
+) -> None:
+    """Simulate a chip axis on a plant along moves; print metrics, write a response plot."""
+    from servogym.chips import ParameterError, family_of, load_params_file
+    from servogym.plants import PlantParameterError
+    from servogym.sim import Evaluator, MoveSpec, Scenario
+    from servogym.sim._plot import plot_response
+
+    try:
+        loaded = load_params_file(params.read_text()) if params else None
+        if loaded is not None and chip is not None and chip.upper() != loaded.params.model.upper():
+            _fail(f"--chip {chip} differs from the params file's chip model {loaded.params.model}")
+        model = loaded.params.model if loaded else (chip or "MC2100")
+        moves = []
+        for text in move or []:
+            try:
+                parts = [float(x) for x in text.split(",")]
+            except ValueError:
+                parts = []
+            if len(parts) not in (3, 4):
+                _fail(
+                    f"--move takes DISTANCE,MAX_VELOCITY,MAX_ACCELERATION[,SETTLE_S]; got {text!r}"
+                )
+            moves.append(MoveSpec(*parts))
+        scenario = Scenario(
+            model, plant, plant_values=_key_values(plant_param, "--plant-param"),
+            moves=tuple(moves), substeps=substeps,
+            assumptions=loaded.assumptions if loaded else None,
+        )  # fmt: skip
+        chip_params = loaded.params if loaded else scenario.default_params()
+        result = Evaluator(scenario).evaluate(chip_params, traces=True)
+    except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
+        _fail(str(exc))
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {"chip_model": model, "chip_family": family_of(chip_params).name, "plant": plant,
+               **result.summary()}  # fmt: skip
+    (out / "metrics.json").write_text(json.dumps(summary, indent=2))
+    plot_response([(model, result)], out / "response.png", f"{model} on {plant}")
+    if as_json:
+        typer.echo(json.dumps(summary, indent=2))
+        return
+    table = Table(title=f"{model} on {plant}: cost {result.cost:.3f}", title_justify="left")
+    table.add_column("metric")
+    for i in range(len(result.metrics)):
+        table.add_column(f"move {i + 1}", justify="right")
+    for name in result.metrics[0].to_dict():
+        if name == "dt":
+            continue
+        row = [name] + [_fmt(m.to_dict()[name]) for m in result.metrics]
+        table.add_row(*row, *[""] * (len(result.metrics) - len(row) + 1))
+    console.print(table)
+    console.print(f"wrote {out / 'response.png'} and {out / 'metrics.json'}")
+
+
+def _fmt(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
 
 
 def main() -> None:  # pragma: no cover - console entry point

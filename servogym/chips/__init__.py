@@ -1,5 +1,30 @@
-"""Exact emulations of servo-chip filters, their legal parameter ranges, profiles and exports."""
+"""Exact emulations of servo-chip filters, their legal parameter ranges, profiles and exports.
 
+Every chip family registers a :class:`ChipFamily`; :func:`get_chip` finds a model by name.
+"""
+
+from servogym.chips._family import (
+    FAMILY_CODES,
+    ChipFamily,
+    Move,
+    all_models,
+    families,
+    family_of,
+    get_chip,
+    load_params_file,
+)
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
 
-__all__ = ["ParamSpec", "ParameterError", "ParameterSpace"]
+__all__ = [
+    "FAMILY_CODES",
+    "ChipFamily",
+    "Move",
+    "ParamSpec",
+    "ParameterError",
+    "ParameterSpace",
+    "all_models",
+    "families",
+    "family_of",
+    "get_chip",
+    "load_params_file",
+]

@@ -107,6 +107,10 @@ class ChipFamily(abc.ABC):
 
     formats: tuple[str, ...] = ("json",)
 
+    @abc.abstractmethod
+    def from_json(self, text: str) -> Any:
+        """Load a servogym JSON parameter file of this family (``.params``, ``.assumptions``)."""
+
     def sample_time_s(self, params: Any) -> float:
         """Servo period of a parameter set (s)."""
         return float(params.sample_time_s)
@@ -151,6 +155,28 @@ def get_chip(model: str) -> tuple[ChipFamily, str]:
             f"unknown chip model {model!r}; known models are {', '.join(models)}.{hint}"
         )
     return models[key], key
+
+
+def load_params_file(text: str) -> Any:
+    """Load a servogym JSON parameter file of any family (``.params``, ``.assumptions``).
+
+    Raises:
+        ParameterError: when the file is not a servogym parameter file or names no known
+            chip family.
+    """
+    import json
+
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ParameterError(f"not a servogym JSON parameter file: {exc}") from None
+    name = doc.get("chip_family") if isinstance(doc, dict) else None
+    known = families()
+    if name not in known:
+        raise ParameterError(
+            f"chip_family must be one of {', '.join(known)}; got chip_family={name!r}."
+        )
+    return known[name].from_json(text)
 
 
 def family_of(params: Any) -> ChipFamily:

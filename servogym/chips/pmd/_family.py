@@ -60,5 +60,8 @@ class PMDFamily(ChipFamily):
     def export(self, params: PMDParams, fmt: str, **kw: Any) -> str:
         return _export.export(params, fmt, **kw)
 
+    def from_json(self, text: str) -> _export.ParamFile:
+        return _export.from_json(text)
+
 
 PMD = register_family(PMDFamily())
