@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/servogym demo --out runs/demo
+	$(BIN)/servogym simulate --chip MC2100 --plant vertical-axis --out runs/demo
 
 test: $(STAMP)
 	$(BIN)/ruff check servogym tests experiments
