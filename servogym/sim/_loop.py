@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from servogym.chips._family import FAMILY_CODES
+from servogym.chips._fixed import wrap32 as _wrap32
 from servogym.chips.pmd._kernel import S_TRIPPED, pmd_step
 from servogym.sim._ffi import mj_step
 
@@ -34,11 +35,6 @@ REASONS = {
     MOTION_ERROR: "chip_motion_error",
     NON_FINITE: "non_finite_state",
 }
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _wrap32(x):
-    return ((x + 2**31) & 0xFFFFFFFF) - 2**31
 
 
 @njit(cache=True, nogil=True)

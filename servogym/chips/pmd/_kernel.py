@@ -15,6 +15,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from servogym.chips._fixed import clamp as _clamp
+from servogym.chips._fixed import shr as _shr
+from servogym.chips._fixed import wrap32 as _wrap32
 from servogym.chips.pmd._params import A_INDEX, P_INDEX
 
 # State layout.
@@ -55,27 +58,6 @@ S48_LO, S48_HI = -(2**47), 2**47 - 1
 def new_state() -> np.ndarray:
     """A zeroed filter state (power-up / reset)."""
     return np.zeros(STATE_SIZE, dtype=np.int64)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _clamp(x, lo, hi):
-    if x < lo:
-        return lo
-    if x > hi:
-        return hi
-    return x
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _shr(x, n, trunc):
-    if trunc != 0 and x < 0:
-        return -((-x) >> n)
-    return x >> n
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _wrap32(x):
-    return ((x + 2**31) & 0xFFFFFFFF) - 2**31
 
 
 @njit(cache=True, nogil=True)

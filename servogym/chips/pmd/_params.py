@@ -12,6 +12,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from servogym.chips._assumptions import AssumptionSet
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
 
 SPEC_VERSION = "pmd-spec-1"
@@ -135,7 +136,7 @@ ASSUMPTION_IDS: dict[str, str] = {
 
 
 @dataclasses.dataclass(frozen=True)
-class PMDAssumptions:
+class PMDAssumptions(AssumptionSet):
     """Switches for every behaviour of the PMD filter that no source settles.
 
     Each field is one assumption of ``docs/chips/pmd.md`` (PMD-A1 ... PMD-A12); the default is
@@ -170,6 +171,9 @@ class PMDAssumptions:
             B0..A2 and of the stage gain K: ``"q14"`` or ``"q15"``.
     """
 
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = ASSUMPTION_CHOICES
+    IDS: ClassVar[dict[str, str]] = ASSUMPTION_IDS
+
     rounding: str = "floor"
     integral_shift: str = "8"
     feedforward_input: str = "integer"
@@ -183,38 +187,9 @@ class PMDAssumptions:
     error_limit_compare: str = "greater"
     biquad_format: str = "q14"
 
-    def __post_init__(self) -> None:
-        for name, choices in ASSUMPTION_CHOICES.items():
-            value = getattr(self, name)
-            if value not in choices:
-                raise ParameterError(
-                    f"assumption {ASSUMPTION_IDS[name]} {name} must be one of "
-                    f"{', '.join(repr(c) for c in choices)}; got {name}={value!r}."
-                )
-
-    def to_array(self) -> np.ndarray:
-        """The switches as an int64 array for the kernel: index of the choice, 0 = default."""
-        return np.array(
-            [ASSUMPTION_CHOICES[n].index(getattr(self, n)) for n in ASSUMPTION_CHOICES],
-            dtype=np.int64,
-        )
-
-    def to_dict(self) -> dict[str, str]:
-        """The switches by name (for provenance in exported files)."""
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def all_settings(cls) -> list[PMDAssumptions]:
-        """The default, and each single alternative switched on alone."""
-        out = [cls()]
-        for name, choices in ASSUMPTION_CHOICES.items():
-            for alt in choices[1:]:
-                out.append(cls(**{name: alt}))
-        return out
-
 
 # Index of each assumption in PMDAssumptions.to_array(), for the kernel.
-A_INDEX: dict[str, int] = {name: i for i, name in enumerate(ASSUMPTION_CHOICES)}
+A_INDEX: dict[str, int] = PMDAssumptions.index()
 
 # --------------------------------------------------------------------------------------
 # Registers
