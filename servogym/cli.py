@@ -120,11 +120,7 @@ def export(
         loaded = load_params_file(params_file.read_text())
         family = family_of(loaded.params)
         kw = {} if axis is None else {"axis": axis}
-        if fmt == "json":
-            kw = {}
-        if fmt in ("json", "cmotion"):
-            kw["assumptions"] = loaded.assumptions
-        text = family.export(loaded.params, fmt, **kw)
+        text = family.export(loaded.params, fmt, assumptions=loaded.assumptions, **kw)
     except (ParameterError, ValueError, OSError) as exc:
         _fail(str(exc))
         return

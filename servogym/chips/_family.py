@@ -103,9 +103,17 @@ class ChipFamily(abc.ABC):
 
     @abc.abstractmethod
     def export(self, params: Any, fmt: str, **kw: Any) -> str:
-        """The parameter set in a hardware format (``formats``)."""
+        """The parameter set in one of ``formats``.
+
+        Every format takes ``assumptions`` (recorded as provenance) and ``axis`` (the axis or
+        motor number; JSON ignores it).
+        """
 
     formats: tuple[str, ...] = ("json",)
+
+    @abc.abstractmethod
+    def reference_filter(self, params: Any, assumptions: Any = None) -> Any:
+        """The family's plain-Python reference filter (``step``, ``motion_error``)."""
 
     @abc.abstractmethod
     def from_json(self, text: str) -> Any:
@@ -189,4 +197,5 @@ def family_of(params: Any) -> ChipFamily:
 
 def _load_builtin() -> None:
     # Importing a family's package registers it.
+    import servogym.chips.parker6k
     import servogym.chips.pmd  # noqa: F401

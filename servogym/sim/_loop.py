@@ -21,10 +21,13 @@ from numba import njit
 
 from servogym.chips._family import FAMILY_CODES
 from servogym.chips._fixed import wrap32 as _wrap32
+from servogym.chips.parker6k._kernel import S_TRIPPED as PK_TRIPPED
+from servogym.chips.parker6k._kernel import parker6k_step
 from servogym.chips.pmd._kernel import S_TRIPPED, pmd_step
 from servogym.sim._ffi import mj_step
 
 FAMILY_PMD = FAMILY_CODES["pmd"]
+FAMILY_PARKER6K = FAMILY_CODES["parker6k"]
 
 # Divergence reasons (EpisodeMetrics.divergence_reason).
 OK, ERROR_BOUND, TRAVEL, MOTION_ERROR, NON_FINITE = 0, 1, 2, 3, 4
@@ -85,7 +88,7 @@ def closed_loop(
         alpha: current-loop update factor in (0, 1]; >= 1 means an ideal current loop.
         counts_origin: encoder counts at which the chip's position register reads 0.
         amp_state: float64[1], the amplifier current carried between calls (A).
-        family: chip family code (FAMILY_PMD).
+        family: chip family code (``servogym.chips.FAMILY_CODES``).
         state, p, a: the chip filter's state, registers and assumption codes (int64 arrays).
         prof_pos, prof_vel, prof_acc: int64[n_ticks] profile (counts, 16.16, 16.16).
         out_actual, out_command: int64[n_ticks] traces written here.
@@ -115,6 +118,10 @@ def closed_loop(
         if family == FAMILY_PMD:
             command = pmd_step(state, p, a, prof_pos[k], actual, prof_vel[k], prof_acc[k])
             if reason == OK and state[S_TRIPPED] != 0:
+                reason = MOTION_ERROR
+        elif family == FAMILY_PARKER6K:
+            command = parker6k_step(state, p, a, prof_pos[k], actual, prof_vel[k], prof_acc[k])
+            if reason == OK and state[PK_TRIPPED] != 0:
                 reason = MOTION_ERROR
         out_command[k] = command
 

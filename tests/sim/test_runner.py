@@ -11,8 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from servogym.chips.pmd import CHIP_MODELS, PMDParams
-from servogym.chips.pmd._reference import PMDReferenceFilter
+from servogym.chips import all_models
+from servogym.chips.pmd import PMDParams
 from servogym.plants import PLANTS, get_plant
 from servogym.sim import METRIC_NAMES, ServoLoop
 from servogym.sim._metrics import compute_metrics
@@ -35,6 +35,7 @@ def small_move(plant, n_ticks=600):
 
 
 def python_traces(loop: ServoLoop, profile) -> tuple[int, int, list, list, list]:
+    """The Python twin of the loop, with the chip family's reference filter."""
     plant = loop.plant
     plant.reset()
     io = plant.io
@@ -45,19 +46,25 @@ def python_traces(loop: ServoLoop, profile) -> tuple[int, int, list, list, list]
         min(int(span * io.counts_per_unit), 2**31 - 1),
         current_loop_alpha(io.current_bandwidth_hz, loop.dt),
         int(np.floor(plant.data.qpos[io.qpos_adr] * io.counts_per_unit)) - profile.start,
-        PMDReferenceFilter(loop.params), profile.position, profile.velocity,
+        loop.chip.reference_filter(loop.params), profile.position, profile.velocity,
         profile.acceleration,
     )  # fmt: skip
 
 
+TWIN_PARAMS = {"pmd": ("MC2100", dict(kp=300, kd=2000, ki=40)), "parker6k": ("6250", {})}
+
+
+@pytest.mark.parametrize("chip", sorted(TWIN_PARAMS))
 @pytest.mark.parametrize("plant_name", list(PLANTS))
 @pytest.mark.parametrize("substeps", [1, 3])
-def test_compiled_loop_equals_python_loop(plant_name, substeps):
+def test_compiled_loop_equals_python_loop(chip, plant_name, substeps):
     family = get_plant(plant_name)
     values = family.sample(np.random.default_rng(7))
     values["current_bandwidth_hz"] = 2000.0  # exercise the current-loop lag too
     plant = family.build(values)
-    loop = ServoLoop(plant, PMDParams(model="MC2100", kp=300, kd=2000, ki=40), substeps=substeps)
+    model, gains = TWIN_PARAMS[chip]
+    params = all_models()[model].make_params(model, gains)
+    loop = ServoLoop(plant, params, substeps=substeps)
     profile = small_move(plant)
     result = loop.run(profile, traces=True)
     n_run, _reason, actual, command, current = python_traces(loop, profile)
@@ -114,14 +121,16 @@ def test_same_inputs_same_traces_across_runs_and_processes():
     assert json.loads(out.strip().splitlines()[-1]) == here
 
 
-@pytest.mark.parametrize("model", sorted(CHIP_MODELS))
+@pytest.mark.parametrize("model", sorted(all_models()))
 @pytest.mark.parametrize("plant_name", list(PLANTS))
 def test_every_chip_model_runs_with_every_plant(model, plant_name):
     plant = get_plant(plant_name).build()
-    r = ServoLoop(plant, PMDParams(model=model)).run(small_move(plant, 300))
+    family = all_models()[model]
+    params = family.make_params(model)
+    r = ServoLoop(plant, params).run(small_move(plant, 300))
     assert r.metrics.n_ticks >= 1
     assert all(math.isfinite(getattr(r.metrics, n)) for n in METRIC_NAMES)
-    assert plant.model.opt.timestep == pytest.approx(PMDParams(model=model).sample_time_s)
+    assert plant.model.opt.timestep == pytest.approx(family.sample_time_s(params))
 
 
 WILD = [

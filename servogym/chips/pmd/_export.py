@@ -1156,7 +1156,9 @@ def export(params: PMDParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
         params: The parameter set; validated again first.
         fmt: ``"json"`` (:func:`to_json`), ``"cmotion"`` (:func:`to_cmotion`) or
             ``"host"`` (:func:`to_host_text`).
-        **kw: Passed to that function (``assumptions``, ``axis``, ``metrics``, ...).
+        **kw: Passed on: ``assumptions`` to every format; ``axis`` to the C-Motion and host
+            formats (a JSON file holds one axis' set and ignores ``axis``); ``metrics``,
+            ``notes``, ``created`` to JSON.
 
     Returns:
         The exported text; :data:`FILE_EXTENSIONS` suggests a file extension.
@@ -1166,6 +1168,7 @@ def export(params: PMDParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
     """
     fmt = _check_format(fmt)
     if fmt == "json":
+        kw.pop("axis", None)
         return to_json(params, **kw)
     if fmt == "cmotion":
         return to_cmotion(params, **kw)

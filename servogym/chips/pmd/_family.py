@@ -11,6 +11,7 @@ from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_fami
 from servogym.chips._space import ParameterSpace
 from servogym.chips.pmd import _export, _kernel, _profile
 from servogym.chips.pmd._params import CHIP_MODELS, PMDAssumptions, PMDParams, parameter_space
+from servogym.chips.pmd._reference import PMDReferenceFilter
 
 
 class PMDFamily(ChipFamily):
@@ -41,6 +42,11 @@ class PMDFamily(ChipFamily):
                 f"assumptions for a PMD chip must be PMDAssumptions; got {type(asm).__name__}"
             )
         return params.to_array(), asm.to_array()
+
+    def reference_filter(
+        self, params: PMDParams, assumptions: PMDAssumptions | None = None
+    ) -> PMDReferenceFilter:
+        return PMDReferenceFilter(params, assumptions)
 
     def new_state(self) -> np.ndarray:
         return _kernel.new_state()

@@ -18,10 +18,11 @@ import enum
 import math
 import numbers
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
+from servogym.chips._assumptions import AssumptionSet
 from servogym.chips._space import ParameterError, ParamSpec
 
 ONE_1616 = 1 << 16
@@ -64,7 +65,7 @@ PROFILE_ASSUMPTION_IDS: dict[str, str] = {
 
 
 @dataclasses.dataclass(frozen=True)
-class ProfileAssumptions:
+class ProfileAssumptions(AssumptionSet):
     """Switches for the profile-generator behaviours no source settles.
 
     Each field is one assumption of ``docs/chips/pmd-profile.md``; the default is the first
@@ -87,32 +88,13 @@ class ProfileAssumptions:
             leftover distance as one extra cycle inserted into that ramp.
     """
 
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = PROFILE_ASSUMPTION_CHOICES
+    IDS: ClassVar[dict[str, str]] = PROFILE_ASSUMPTION_IDS
+
     update_order: str = "velocity_first"
     position_rounding: str = "floor"
     distance: str = "wrapped"
     deceleration: str = "exact"
-
-    def __post_init__(self) -> None:
-        for name, choices in PROFILE_ASSUMPTION_CHOICES.items():
-            value = getattr(self, name)
-            if value not in choices:
-                raise ParameterError(
-                    f"assumption {PROFILE_ASSUMPTION_IDS[name]} {name} must be one of "
-                    f"{', '.join(repr(c) for c in choices)}; got {name}={value!r}."
-                )
-
-    def to_dict(self) -> dict[str, str]:
-        """The switches by name (for provenance in exported files)."""
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def all_settings(cls) -> list[ProfileAssumptions]:
-        """The default, and each single alternative switched on alone."""
-        out = [cls()]
-        for name, choices in PROFILE_ASSUMPTION_CHOICES.items():
-            for alt in choices[1:]:
-                out.append(cls(**{name: alt}))
-        return out
 
 
 _DEFAULT_ASSUMPTIONS = ProfileAssumptions()

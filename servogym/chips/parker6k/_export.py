@@ -1,0 +1,823 @@
+"""Export and import of 6000-series parameter sets: JSON, and command files the controller takes.
+
+Three formats; each imports back to the identical :class:`Parker6kParams`:
+
+* ``"json"``: a parameter file with provenance (model, spec version, assumptions, creation
+  time, servogym version, optional metrics and notes).
+* ``"6250"``: a command file with comma-separated axis fields, as the 6250 takes them
+  (``SGP.5,.5`` sets both axes; ``SGP,85`` only axis 2).
+* ``"6k"``: a command file with axis-prefixed commands, as the 6K takes them (``1SGP10``).
+
+A command file stores each gain set with the five gains followed by ``SGSET<n>``, then gives
+the gains in force and the axis settings. The SGENB schedule of a set is simulation data
+(ticks of the servo loop), written as ``; sgenb tick=<t> set=<n>`` comment lines that the
+controller ignores and the importer reads. Every export validates the set first and refuses
+an illegal one; an import refuses an illegal value naming the line, the value and the range,
+and a value with more decimals than the command's resolution. Where the syntax comes from:
+``docs/chips/parker6k.md``, section 7.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import difflib
+import json
+import re
+import warnings
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from servogym import __version__
+from servogym.chips._space import ParameterError
+from servogym.chips.parker6k._params import (
+    ASSUMPTION_CHOICES,
+    ASSUMPTION_IDS,
+    CHIP_MODELS,
+    COMMANDS,
+    DECIMALS,
+    FIELDS,
+    GAIN_FIELDS,
+    MAX_GAIN_SETS,
+    SPEC_VERSION,
+    GainSet,
+    Parker6kAssumptions,
+    Parker6kModel,
+    Parker6kParams,
+    check_ssfr,
+    format_decimal,
+    get_model,
+    parameter_space,
+)
+
+__all__ = [
+    "FILE_EXTENSIONS",
+    "FILE_FORMAT",
+    "FILE_FORMAT_VERSION",
+    "FORMATS",
+    "ParamFile",
+    "export",
+    "from_command_file",
+    "from_json",
+    "import_params",
+    "parse_decimal",
+    "read_header",
+    "to_command_file",
+    "to_json",
+]
+
+FORMATS: tuple[str, ...] = ("json", "6250", "6k")
+"""The export formats, in the order :func:`export` documents them."""
+
+FILE_EXTENSIONS: dict[str, str] = {"json": ".json", "6250": ".prg", "6k": ".prg"}
+"""Suggested file extension of each format."""
+
+FILE_FORMAT = "servogym-params"
+"""Value of the ``format`` key of a JSON parameter file."""
+
+FILE_FORMAT_VERSION = 1
+"""Version of the JSON parameter-file layout this module writes and reads."""
+
+CHIP_FAMILY = "parker6k"
+
+_SYSTEM_COMMANDS = ("SSFR", "SGSET")  # controller-wide: no axis fields, no prefix [A]
+_REGISTER_OF = {cmd: reg for reg, cmd in COMMANDS.items()}
+_KNOWN = (*COMMANDS.values(), "SGSET", "SGENB")
+
+
+# --------------------------------------------------------------------------------------
+# Shared checks
+# --------------------------------------------------------------------------------------
+
+
+def _legal_params(params: Parker6kParams | Mapping[str, Any]) -> Parker6kParams:
+    """Validate ``params`` again (a mapping is built through :meth:`Parker6kParams.from_dict`)."""
+    if isinstance(params, Parker6kParams):
+        return Parker6kParams(
+            **{f.name: getattr(params, f.name) for f in dataclasses.fields(params)}
+        )
+    if isinstance(params, Mapping):
+        return Parker6kParams.from_dict(params)
+    raise ParameterError(
+        f"params must be a Parker6kParams or a mapping of parameter names to values; got "
+        f"params of type {type(params).__name__}."
+    )
+
+
+def _check_assumption_names(values: Mapping[str, Any], where: str, *, require_all: bool) -> None:
+    names = list(ASSUMPTION_CHOICES)
+    for name in values:
+        if name not in ASSUMPTION_CHOICES:
+            close = difflib.get_close_matches(str(name), names, n=3)
+            hint = f" Did you mean {', '.join(close)}?" if close else ""
+            raise ParameterError(
+                f"{where} has an unknown assumption {name!r}; the assumptions are "
+                f"{', '.join(names)}.{hint}"
+            )
+    if require_all:
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise ParameterError(
+                f"{where} must give every assumption so the behaviour is pinned down; "
+                f"missing {', '.join(missing)}."
+            )
+
+
+def _legal_assumptions(
+    assumptions: Parker6kAssumptions | Mapping[str, str] | None,
+) -> Parker6kAssumptions:
+    if assumptions is None:
+        return Parker6kAssumptions()
+    if isinstance(assumptions, Parker6kAssumptions):
+        return assumptions
+    if isinstance(assumptions, Mapping):
+        _check_assumption_names(assumptions, "assumptions", require_all=False)
+        return Parker6kAssumptions(**assumptions)
+    raise ParameterError(
+        f"assumptions must be a Parker6kAssumptions, a mapping of assumption names or None; "
+        f"got assumptions of type {type(assumptions).__name__}."
+    )
+
+
+def _check_axis(chip: Parker6kModel, axis: Any, where: str = "") -> int:
+    at = f"{where}: " if where else ""
+    if isinstance(axis, bool) or not isinstance(axis, int | np.integer):
+        raise ParameterError(
+            f"{at}axis must be an integer with 1 <= axis <= {chip.n_axes} ({chip.name}); "
+            f"got axis={axis!r} of type {type(axis).__name__}."
+        )
+    if not 1 <= axis <= chip.n_axes:
+        raise ParameterError(
+            f"{at}axis must satisfy 1 <= axis <= {chip.n_axes} ({chip.name} has "
+            f"{chip.n_axes} axes); got axis={int(axis)}."
+        )
+    return int(axis)
+
+
+def _check_format(fmt: Any) -> str:
+    if isinstance(fmt, str) and fmt.lower() in FORMATS:
+        return fmt.lower()
+    close = difflib.get_close_matches(str(fmt).lower(), FORMATS, n=1)
+    hint = f" Did you mean {close[0]!r}?" if close else ""
+    listed = ", ".join(f"{f!r} ({FILE_EXTENSIONS[f]})" for f in FORMATS)
+    raise ParameterError(f"fmt must be one of {listed}; got fmt={fmt!r}.{hint}")
+
+
+def _check_form(chip: Parker6kModel, fmt: str) -> None:
+    if fmt == "6k" and not chip.axis_prefix:
+        raise ParameterError(
+            f"the {chip.name} takes comma-separated axis fields, not axis-prefixed commands; "
+            f"use fmt='6250' for a {chip.name} (the '6k' form is for models "
+            f"{', '.join(m.name for m in CHIP_MODELS.values() if m.axis_prefix)})."
+        )
+
+
+# --------------------------------------------------------------------------------------
+# Decimal values
+# --------------------------------------------------------------------------------------
+
+_DECIMAL = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
+
+
+def parse_decimal(text: str, register: str) -> int:
+    """The register count of a command value: ``parse_decimal('.5', 'sgp') == 50``.
+
+    Args:
+        text: The value as written (``85``, ``85.``, ``.5``, ``+2.30``, ``-.25``).
+        register: The register it sets (its resolution is :data:`DECIMALS`).
+
+    Raises:
+        ParameterError: if the text is not a decimal number, or has a nonzero digit beyond
+            the command's resolution (trailing zeros are accepted). The range is not
+            checked here.
+    """
+    command = COMMANDS[register]
+    places = DECIMALS[register]
+    m = _DECIMAL.match(text.strip())
+    if not m or not (m.group(2) or m.group(3)):
+        raise ParameterError(
+            f"{command} takes a decimal number such as {command}85 or {command}.5; "
+            f"got {command}{text!r}."
+        )
+    sign, whole, frac = m.group(1), m.group(2) or "0", m.group(3) or ""
+    extra = frac[places:]
+    if extra.strip("0"):
+        step = "1" if places == 0 else f"{10**-places:.{places}f}"
+        raise ParameterError(
+            f"{command} takes at most {places} decimal{'s' if places != 1 else ''} (steps of "
+            f"{step}); got {command}{text.strip()}, which has more: the controller would "
+            f"not hold it exactly."
+        )
+    frac = frac[:places].ljust(places, "0")
+    value = int(whole) * 10**places + (int(frac) if frac else 0)
+    return -value if sign == "-" else value
+
+
+# --------------------------------------------------------------------------------------
+# Provenance header (comment lines)
+# --------------------------------------------------------------------------------------
+
+_HEADER_KEY = re.compile(r"^\s*([a-z_]+)\s*:\s*(\S.*?)\s*$")
+_HEADER_ASSUMPTION = re.compile(r"^\s*assumption\s+PK-A\d+\s+([a-z_]+)\s*:\s*(\S+)\s*$")
+_HEADER_SWITCH = re.compile(r"^\s*sgenb\s+tick\s*=\s*(\S+)\s+set\s*=\s*(\S+)\s*$")
+
+
+def _split(text: str) -> list[tuple[int, str, str]]:
+    """``(line number, code, comment)`` of each line; ``;`` starts a comment."""
+    out = []
+    for n, raw in enumerate(text.splitlines(), start=1):
+        code, sep, comment = raw.partition(";")
+        out.append((n, code, comment if sep else ""))
+    return out
+
+
+def read_header(text: str) -> dict[str, Any]:
+    """The provenance header of a command file written by :func:`to_command_file`.
+
+    Returns:
+        The ``key: value`` comment entries as strings (``chip_model``, ``spec_version``,
+        ``axis``, ``form``, ...); under ``"assumptions"`` a :class:`Parker6kAssumptions`
+        when the header lists them; under ``"sgenb"`` the schedule's ``(tick, set)`` pairs
+        as strings, in file order. Empty if there is no header.
+
+    Raises:
+        ParameterError: if the header lists only some assumptions, or an unknown one.
+    """
+    fields: dict[str, Any] = {}
+    assumed: dict[str, str] = {}
+    switches: list[tuple[int, str, str]] = []
+    for n, _code, comment in _split(text):
+        if not comment:
+            continue
+        m = _HEADER_ASSUMPTION.match(comment)
+        if m:
+            assumed.setdefault(m.group(1), m.group(2))
+            continue
+        m = _HEADER_SWITCH.match(comment)
+        if m:
+            switches.append((n, m.group(1), m.group(2)))
+            continue
+        m = _HEADER_KEY.match(comment)
+        if m:
+            fields.setdefault(m.group(1), m.group(2))
+    if assumed:
+        _check_assumption_names(assumed, "the header", require_all=True)
+        fields["assumptions"] = Parker6kAssumptions(**assumed)
+    if switches:
+        fields["sgenb"] = switches
+    return fields
+
+
+def _header_lines(p: Parker6kParams, a: Parker6kAssumptions, axis: int, fmt: str) -> list[str]:
+    form = "comma-separated axis fields" if fmt == "6250" else "axis-prefixed commands"
+    lines = [
+        f"servogym Parker 6000-series parameter set, {fmt} command file ({form})",
+        f"chip_model: {p.model}",
+        f"form: {fmt}",
+        f"axis: {axis}",
+        f"spec_version: {SPEC_VERSION}",
+        f"sample_time_us: {p.sample_time_us}",
+        f"servogym_version: {__version__}",
+        "units: SMPER in encoder counts (scaling off); gains as assumption PK-A1 says",
+    ]
+    lines += [
+        f"assumption {ASSUMPTION_IDS[name]} {name}: {value}" for name, value in a.to_dict().items()
+    ]
+    lines += [f"sgenb tick={t} set={s}" for t, s in p.sgenb]
+    return lines
+
+
+# --------------------------------------------------------------------------------------
+# Command files
+# --------------------------------------------------------------------------------------
+
+
+def _line(command: str, value: str, axis: int, fmt: str) -> str:
+    if command in _SYSTEM_COMMANDS:
+        return f"{command}{value}"
+    if fmt == "6k":
+        return f"{axis}{command}{value}"
+    return f"{command}{',' * (axis - 1)}{value}"
+
+
+def _register_line(register: str, value: int, axis: int, fmt: str) -> str:
+    return _line(COMMANDS[register], format_decimal(value, DECIMALS[register]), axis, fmt)
+
+
+def to_command_file(
+    params: Parker6kParams | Mapping[str, Any],
+    fmt: str = "6250",
+    axis: int = 1,
+    assumptions: Parker6kAssumptions | Mapping[str, str] | None = None,
+) -> str:
+    """A command file that loads the set into one axis.
+
+    Order: ``SSFR``; each stored set as its five gains then ``SGSET<n>``; the gains in
+    force; ``SGILIM``, ``SOFFS``, ``SMPER``. A ``;`` header carries the provenance and the
+    SGENB schedule.
+
+    Args:
+        params: The parameter set; validated again first.
+        fmt: ``"6250"`` (comma-separated axis fields, any model) or ``"6k"`` (axis-prefixed
+            commands, 6K only).
+        axis: Axis number, 1 .. the model's axis count.
+        assumptions: Recorded in the header; default all defaults.
+
+    Returns:
+        The file text, one command a line, newline-terminated.
+
+    Raises:
+        ParameterError: for an illegal set, axis or form.
+    """
+    p = _legal_params(params)
+    a = _legal_assumptions(assumptions)
+    fmt = _check_format(fmt)
+    if fmt == "json":
+        raise ParameterError("to_command_file writes fmt='6250' or fmt='6k'; use to_json.")
+    chip = p.chip
+    _check_form(chip, fmt)
+    axis = _check_axis(chip, axis)
+    lines = [f"; {line}" for line in _header_lines(p, a, axis, fmt)]
+    lines.append(_register_line("ssfr", p.ssfr, axis, fmt))
+    for number, gains in enumerate(p.sgset, start=1):
+        lines += [_register_line(g, getattr(gains, g), axis, fmt) for g in GAIN_FIELDS]
+        lines.append(_line("SGSET", str(number), axis, fmt))
+    lines += [_register_line(r, getattr(p, r), axis, fmt) for r in GAIN_FIELDS]
+    lines += [_register_line(r, getattr(p, r), axis, fmt) for r in ("sgilim", "soffs", "smper")]
+    return "".join(line + "\n" for line in lines)
+
+
+_COMMAND = re.compile(r"^(\d*)\s*([A-Za-z]+)\s*(.*?)\s*$")
+
+
+class _Reader:
+    """The controller's state as a command file sets it, for one axis."""
+
+    def __init__(self, chip: Parker6kModel, axis: int, fmt: str) -> None:
+        self.chip = chip
+        self.axis = axis
+        self.fmt = fmt
+        self.space = parameter_space(chip)
+        self.values: dict[str, int] = {}
+        self.stored: dict[int, GainSet] = {}
+
+    def field(self, where: str, command: str, prefix: str, value: str) -> str | None:
+        """The value for this axis, or None when the command leaves this axis alone."""
+        if command in _SYSTEM_COMMANDS:
+            if prefix or "," in value:
+                raise ParameterError(
+                    f"{where}: {command} is a controller-wide command: write it without an "
+                    f"axis prefix or axis fields (e.g. {command}4); got "
+                    f"{prefix}{command}{value}."
+                )
+            return value
+        if prefix:
+            if self.fmt != "6k":
+                raise ParameterError(
+                    f"{where}: the 6250 form takes comma-separated axis fields, not an axis "
+                    f"prefix; got {prefix}{command}{value} (write {command}"
+                    f"{',' * (int(prefix) - 1)}{value}, or import with fmt='6k')."
+                )
+            target = _check_axis(self.chip, int(prefix), where)
+            return value if target == self.axis else None
+        fields = value.split(",")
+        if len(fields) > self.chip.n_axes:
+            raise ParameterError(
+                f"{where}: {command} has {len(fields)} axis fields but the {self.chip.name} "
+                f"has {self.chip.n_axes} axes; got {command}{value}."
+            )
+        text = fields[self.axis - 1] if self.axis <= len(fields) else ""
+        return text if text.strip() else None
+
+    def set_register(self, where: str, register: str, text: str) -> None:
+        try:
+            value = parse_decimal(text, register)
+            self.values[register] = self.space[register].validate(value, context=self.chip.name)
+        except ParameterError as exc:
+            raise ParameterError(f"{where}: {exc}") from None
+        if register == "ssfr":
+            try:
+                check_ssfr(self.values["ssfr"], self.chip.name)
+            except ParameterError as exc:
+                raise ParameterError(f"{where}: {exc}") from None
+
+    def set_number(self, where: str, command: str, text: str) -> int:
+        if not re.fullmatch(r"\d+", text.strip()):
+            raise ParameterError(
+                f"{where}: {command} takes a gain set number 1 .. {MAX_GAIN_SETS}; "
+                f"got {command}{text}."
+            )
+        number = int(text)
+        if not 1 <= number <= MAX_GAIN_SETS:
+            raise ParameterError(
+                f"{where}: {command} must name a gain set with 1 <= set <= {MAX_GAIN_SETS}; "
+                f"got {command}{text}."
+            )
+        return number
+
+    def store(self, where: str, number: int) -> None:
+        missing = [COMMANDS[g] for g in GAIN_FIELDS if g not in self.values]
+        if missing:
+            raise ParameterError(
+                f"{where}: SGSET{number} stores the five gains, but the file has not set "
+                f"{', '.join(missing)} before it (an import takes no defaults)."
+            )
+        self.stored[number] = GainSet(**{g: self.values[g] for g in GAIN_FIELDS})
+
+    def enable(self, where: str, number: int) -> None:
+        if number not in self.stored:
+            raise ParameterError(
+                f"{where}: SGENB{number} enables gain set {number}, which the file has not "
+                f"stored with SGSET{number} before it."
+            )
+        self.values.update(self.stored[number].to_dict())
+
+
+def from_command_file(
+    text: str,
+    fmt: str = "6250",
+    model: str | Parker6kModel | None = None,
+    axis: int | None = None,
+) -> Parker6kParams:
+    """Read a command file back into the parameter set of one axis.
+
+    The file is read as the controller executes it: commands are separated by newlines or
+    ``:``; ``;`` starts a comment; later commands overwrite earlier ones; ``SGSET<n>`` stores
+    the gains set so far as set n; ``SGENB<n>`` makes set n's gains the gains in force. The
+    stored sets must be numbered from 1 without gaps. The SGENB schedule comes from the
+    header's ``; sgenb tick=<t> set=<n>`` lines.
+
+    Args:
+        text: The file.
+        fmt: ``"6250"`` or ``"6k"`` (which also takes comma-separated fields).
+        model: Default the header's ``chip_model``; if both are given they must agree.
+        axis: Default the header's ``axis``, else 1; if both are given they must agree.
+
+    Returns:
+        The parameter set.
+
+    Raises:
+        ParameterError: naming the line, for an unknown command, a value out of range (with
+            the range) or finer than the command's resolution, an axis field or prefix the
+            model does not have, a setting the file never makes, or a gap in the stored sets.
+    """
+    fmt = _check_format(fmt)
+    if fmt == "json":
+        raise ParameterError("from_command_file reads fmt='6250' or fmt='6k'; use from_json.")
+    header = read_header(text)
+    chip = _resolve_model(model, header)
+    _check_form(chip, fmt)
+    named_axis = header.get("axis")
+    if axis is None:
+        axis = int(named_axis) if named_axis is not None and named_axis.isdigit() else 1
+    axis = _check_axis(chip, axis)
+    if named_axis is not None and named_axis != str(axis):
+        raise ParameterError(
+            f"axis={axis} disagrees with the header's 'axis: {named_axis}'; pass "
+            f"axis={named_axis}, or axis=None to use the header."
+        )
+    reader = _Reader(chip, axis, fmt)
+    for n, code, _comment in _split(text):
+        for part in code.split(":"):
+            command_text = part.strip()
+            if not command_text:
+                continue
+            where = f"line {n}"
+            m = _COMMAND.match(command_text)
+            if not m:
+                raise ParameterError(
+                    f"{where}: cannot read {command_text!r}; a command reads like SGP85, "
+                    f"SGP,.5 or 1SGP10."
+                )
+            prefix, name, value = m.group(1), m.group(2).upper(), m.group(3)
+            if name not in _KNOWN:
+                close = difflib.get_close_matches(name, _KNOWN, n=2)
+                hint = f" Did you mean {', '.join(close)}?" if close else ""
+                raise ParameterError(
+                    f"{where}: unknown command {name}; the commands of a servogym 6000-series "
+                    f"file are {', '.join(_KNOWN)}.{hint}"
+                )
+            field = reader.field(where, name, prefix, value)
+            if field is None:
+                continue
+            if name == "SGSET":
+                reader.store(where, reader.set_number(where, name, field))
+            elif name == "SGENB":
+                reader.enable(where, reader.set_number(where, name, field))
+            else:
+                reader.set_register(where, _REGISTER_OF[name], field)
+    missing = [COMMANDS[r] for r in FIELDS if r not in reader.values]
+    if missing:
+        raise ParameterError(
+            f"the command file does not set {', '.join(missing)} for axis {axis}; an import "
+            f"takes no defaults."
+        )
+    numbers = sorted(reader.stored)
+    if numbers != list(range(1, len(numbers) + 1)):
+        gap = next(i for i in range(1, MAX_GAIN_SETS + 1) if i not in reader.stored)
+        raise ParameterError(
+            f"the stored gain sets must be numbered from 1 without gaps; the file stores "
+            f"{', '.join(f'SGSET{i}' for i in numbers)} but not SGSET{gap}."
+        )
+    schedule = []
+    for n, tick, number in header.get("sgenb", []):
+        if not (tick.isdigit() and number.isdigit()):
+            raise ParameterError(
+                f"line {n}: a schedule line reads '; sgenb tick=<integer> set=<integer>'; got "
+                f"tick={tick!r} set={number!r}."
+            )
+        schedule.append((int(tick), int(number)))
+    return Parker6kParams(
+        model=chip.name,
+        **reader.values,
+        sgset=tuple(reader.stored[i] for i in numbers),
+        sgenb=tuple(schedule),
+    )
+
+
+def _resolve_model(model: str | Parker6kModel | None, header: Mapping[str, Any]) -> Parker6kModel:
+    named = header.get("chip_model")
+    if model is None:
+        if named is None:
+            raise ParameterError(
+                "the command file names no model (no '; chip_model:' header line); pass "
+                f"model=, one of {', '.join(CHIP_MODELS)}."
+            )
+        return get_model(named)
+    chip = get_model(model)
+    if named is not None and get_model(named).name != chip.name:
+        raise ParameterError(
+            f"model={chip.name!r} disagrees with the header's 'chip_model: {named}'; pass "
+            f"model={named!r}, or model=None to use the header."
+        )
+    return chip
+
+
+# --------------------------------------------------------------------------------------
+# JSON parameter file
+# --------------------------------------------------------------------------------------
+
+_REQUIRED_KEYS = (
+    "format",
+    "format_version",
+    "chip_family",
+    "chip_model",
+    "sample_time_us",
+    "spec_version",
+    "assumptions",
+    "params",
+    "created",
+    "servogym_version",
+)
+_OPTIONAL_KEYS = ("metrics", "notes")
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamFile:
+    """A parameter file read by :func:`from_json`.
+
+    Attributes:
+        params: The parameter set, validated.
+        assumptions: The assumption switches the set was tuned under.
+        provenance: Every other top-level entry of the file.
+    """
+
+    params: Parker6kParams
+    assumptions: Parker6kAssumptions
+    provenance: dict[str, Any]
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"values of type {type(obj).__name__} cannot be written as JSON")
+
+
+def _json_object(value: Any, name: str) -> dict[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ParameterError(
+            f"{name} must be a mapping (written as a JSON object); got {name} of type "
+            f"{type(value).__name__}."
+        )
+    try:
+        return json.loads(json.dumps(dict(value), allow_nan=False, default=_json_default))
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(
+            f"{name} must hold only JSON values (str keys; str, int, finite float, bool, "
+            f"None, lists and mappings of them; NumPy scalars are converted): {exc}."
+        ) from None
+
+
+def _created_text(created: str | _dt.datetime | None) -> str:
+    if created is None:
+        return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+    if isinstance(created, _dt.datetime):
+        return created.isoformat()
+    if isinstance(created, str):
+        try:
+            _dt.datetime.fromisoformat(created)
+        except ValueError:
+            raise ParameterError(
+                f"created must be an ISO 8601 timestamp such as '2025-01-31T12:00:00+00:00'; "
+                f"got created={created!r}."
+            ) from None
+        return created
+    raise ParameterError(
+        f"created must be a datetime, an ISO 8601 string or None; got created of type "
+        f"{type(created).__name__}."
+    )
+
+
+def to_json(
+    params: Parker6kParams | Mapping[str, Any],
+    assumptions: Parker6kAssumptions | Mapping[str, str] | None = None,
+    *,
+    metrics: Mapping[str, Any] | None = None,
+    notes: Mapping[str, Any] | None = None,
+    created: str | _dt.datetime | None = None,
+) -> str:
+    """A JSON parameter file with provenance.
+
+    Args:
+        params: The parameter set; validated again before writing.
+        assumptions: The switches the set was tuned under; default all defaults.
+        metrics: Optional results to keep with the set.
+        notes: Optional free-form notes.
+        created: Creation time; default now (UTC).
+
+    Returns:
+        The file text (2-space indent, trailing newline).
+    """
+    p = _legal_params(params)
+    a = _legal_assumptions(assumptions)
+    doc: dict[str, Any] = {
+        "format": FILE_FORMAT,
+        "format_version": FILE_FORMAT_VERSION,
+        "chip_family": CHIP_FAMILY,
+        "chip_model": p.model,
+        "sample_time_us": p.sample_time_us,
+        "spec_version": SPEC_VERSION,
+        "assumptions": a.to_dict(),
+        "params": p.to_dict(),
+        "created": _created_text(created),
+        "servogym_version": __version__,
+    }
+    if metrics is not None:
+        doc["metrics"] = _json_object(metrics, "metrics")
+    if notes is not None:
+        doc["notes"] = _json_object(notes, "notes")
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+
+def _expect(doc: Mapping[str, Any], key: str, kind: type | tuple[type, ...], what: str) -> Any:
+    value = doc[key]
+    if (isinstance(value, bool) and kind is not bool) or not isinstance(value, kind):
+        raise ParameterError(f"{key} must be {what}; got {key}={value!r}.")
+    return value
+
+
+def from_json(text: str | bytes) -> ParamFile:
+    """Read a JSON parameter file written by :func:`to_json`.
+
+    Raises:
+        ParameterError: if the text is not a servogym parameter file of this family, misses
+            or adds keys, or lists an illegal or incomplete parameter set.
+
+    Warns:
+        UserWarning: if the file was written for another ``spec_version``.
+    """
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ParameterError(
+            f"a parameter file must be JSON; invalid JSON at line {exc.lineno} column "
+            f"{exc.colno}: {exc.msg}."
+        ) from None
+    if not isinstance(doc, dict):
+        raise ParameterError(
+            f"a parameter file must be a JSON object; got a JSON {type(doc).__name__}."
+        )
+    if doc.get("format") != FILE_FORMAT:
+        raise ParameterError(
+            f"format must be {FILE_FORMAT!r} (a servogym parameter file); got "
+            f"format={doc.get('format')!r}."
+        )
+    version = doc.get("format_version")
+    if type(version) is not int or version != FILE_FORMAT_VERSION:
+        raise ParameterError(
+            f"format_version must be {FILE_FORMAT_VERSION}; got format_version={version!r}."
+        )
+    if doc.get("chip_family") != CHIP_FAMILY:
+        raise ParameterError(
+            f"chip_family must be {CHIP_FAMILY!r} for a Parker 6000-series parameter file; "
+            f"got chip_family={doc.get('chip_family')!r}. Read other families with their own "
+            f"importer."
+        )
+    missing = [k for k in _REQUIRED_KEYS if k not in doc]
+    if missing:
+        raise ParameterError(f"the parameter file misses the keys {', '.join(missing)}.")
+    allowed = _REQUIRED_KEYS + _OPTIONAL_KEYS
+    unknown = [k for k in doc if k not in allowed]
+    if unknown:
+        raise ParameterError(
+            f"the parameter file has unknown keys {', '.join(map(repr, unknown))}; "
+            f"format_version {FILE_FORMAT_VERSION} allows {', '.join(allowed)}."
+        )
+    chip = get_model(_expect(doc, "chip_model", str, "a 6000-series model name"))
+    values = _expect(doc, "params", dict, "a JSON object of parameter values")
+    if values.get("model") != chip.name:
+        raise ParameterError(
+            f"params.model must equal chip_model {chip.name!r}; got "
+            f"params.model={values.get('model')!r}."
+        )
+    absent = [r for r in (*FIELDS, "sgset", "sgenb") if r not in values]
+    if absent:
+        raise ParameterError(
+            f"params must give every parameter of {chip.name} (an import takes no defaults); "
+            f"missing {', '.join(absent)}."
+        )
+    params = Parker6kParams.from_dict(values)
+    sample = _expect(doc, "sample_time_us", int, "an integer")
+    if sample != params.sample_time_us:
+        raise ParameterError(
+            f"sample_time_us must equal the servo period of params.ssfr={params.ssfr} "
+            f"({params.sample_time_us}); got sample_time_us={sample!r}."
+        )
+    asm = _expect(doc, "assumptions", dict, "a JSON object of assumption switches")
+    _check_assumption_names(asm, "assumptions", require_all=True)
+    assumptions = Parker6kAssumptions(**asm)
+    spec = _expect(doc, "spec_version", str, "a string")
+    _created_text(_expect(doc, "created", str, "an ISO 8601 timestamp string"))
+    _expect(doc, "servogym_version", str, "a string")
+    for key in _OPTIONAL_KEYS:
+        if key in doc:
+            _expect(doc, key, dict, "a JSON object")
+    if spec != SPEC_VERSION:
+        warnings.warn(
+            f"the parameter file was written for spec_version {spec!r} but this servogym "
+            f"implements {SPEC_VERSION!r}: the settings load unchanged, but the emulated "
+            f"behaviour may differ from the one its metrics were measured with. Evaluate the "
+            f"set again to refresh its metrics.",
+            UserWarning,
+            stacklevel=2,
+        )
+    provenance = {k: v for k, v in doc.items() if k not in ("params", "assumptions")}
+    return ParamFile(params=params, assumptions=assumptions, provenance=provenance)
+
+
+# --------------------------------------------------------------------------------------
+# Dispatch
+# --------------------------------------------------------------------------------------
+
+
+def export(params: Parker6kParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
+    """Export a parameter set in one of :data:`FORMATS`.
+
+    Args:
+        params: The parameter set; validated again first.
+        fmt: ``"json"`` (:func:`to_json`), ``"6250"`` or ``"6k"`` (:func:`to_command_file`).
+        **kw: Passed on: ``assumptions`` to every format; ``axis`` to the command files (a
+            JSON file holds one axis' set and ignores ``axis``); ``metrics``, ``notes``,
+            ``created`` to JSON.
+
+    Returns:
+        The exported text; :data:`FILE_EXTENSIONS` suggests a file extension.
+    """
+    fmt = _check_format(fmt)
+    if fmt == "json":
+        kw.pop("axis", None)
+        return to_json(params, **kw)
+    return to_command_file(params, fmt, **kw)
+
+
+def import_params(
+    text: str,
+    fmt: str,
+    model: str | Parker6kModel | None = None,
+    axis: int | None = None,
+) -> Parker6kParams:
+    """Import a parameter set exported in one of :data:`FORMATS`.
+
+    Args:
+        text: The exported text.
+        fmt: ``"json"``, ``"6250"`` or ``"6k"``.
+        model: Default the model the text names; if both are given they must agree.
+        axis: Command files only: the axis to read (default the header's, else 1).
+
+    Returns:
+        The parameter set (for the provenance of a JSON file use :func:`from_json`).
+    """
+    fmt = _check_format(fmt)
+    if fmt == "json":
+        params = from_json(text).params
+        if model is not None and get_model(model).name != params.model:
+            raise ParameterError(
+                f"model={get_model(model).name!r} disagrees with the file's chip_model "
+                f"{params.model!r}; pass model={params.model!r} or model=None."
+            )
+        return params
+    return from_command_file(text, fmt, model, axis)
