@@ -15,7 +15,9 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/servogym simulate --chip MC2100 --plant vertical-axis --out runs/demo
+	rm -rf runs/demo
+	$(BIN)/servogym tune --chip MC2100 --plant vertical-axis --budget 400 --tuner tpe \
+		--workers 2 --out runs/demo
 
 test: $(STAMP)
 	$(BIN)/ruff check servogym tests experiments

@@ -216,6 +216,15 @@ def _fmt(value: object) -> str:
     return str(value)
 
 
+def _register_subcommands() -> None:
+    from servogym.autotune._cli import tune_command
+
+    app.command("tune")(tune_command)
+
+
+_register_subcommands()
+
+
 def main() -> None:  # pragma: no cover - console entry point
     app()
 

@@ -110,6 +110,11 @@ class ChipFamily(abc.ABC):
         """
 
     formats: tuple[str, ...] = ("json",)
+    file_extensions: Mapping[str, str] = {"json": ".json"}
+
+    @abc.abstractmethod
+    def import_params(self, text: str, fmt: str, model: str | None = None) -> Any:
+        """A parameter set read back from one of ``formats`` (identical to what was exported)."""
 
     @abc.abstractmethod
     def reference_filter(self, params: Any, assumptions: Any = None) -> Any:

@@ -71,9 +71,10 @@ class ParamSpec:
         """Map ``u`` in [-1, 1] onto a legal value (what envs' Box actions and tuners use).
 
         Linear registers map ``u`` evenly onto ``low..high``. Log-scaled registers map it
-        log-uniformly onto ``max(low, 1)..high``; when ``low`` is 0, the lowest
+        log-uniformly onto ``max(low, 1)..high``; when ``low`` is 0 or negative, the lowest
         :data:`ZERO_FRACTION` of the interval gives 0 (the term switched off), so 0 stays
-        reachable. The result is rounded to the nearest integer, and is always legal.
+        reachable (a signed log-scaled gain is searched over 0 and its positive values
+        only). The result is rounded to the nearest integer, and is always legal.
 
         Raises:
             ParameterError: when ``u`` is not a finite number in [-1, 1].
@@ -89,7 +90,7 @@ class ParamSpec:
         lo = max(self.low, 1)
         if self.low <= 0:
             if u < _ZERO_BELOW:
-                return self.low
+                return min(max(self.low, 0), self.high)
             t = (u - _ZERO_BELOW) / (1.0 - _ZERO_BELOW)
         value = round(math.exp(math.log(lo) + t * (math.log(self.high) - math.log(lo))))
         return min(self.high, max(lo, value))

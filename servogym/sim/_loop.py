@@ -23,10 +23,13 @@ from servogym.chips._family import FAMILY_CODES
 from servogym.chips._fixed import wrap32 as _wrap32
 from servogym.chips.parker6k._kernel import S_TRIPPED as PK_TRIPPED
 from servogym.chips.parker6k._kernel import parker6k_step
+from servogym.chips.pmac._kernel import S_TRIPPED as PMAC_TRIPPED
+from servogym.chips.pmac._kernel import pmac_step
 from servogym.chips.pmd._kernel import S_TRIPPED, pmd_step
 from servogym.sim._ffi import mj_step
 
 FAMILY_PMD = FAMILY_CODES["pmd"]
+FAMILY_PMAC = FAMILY_CODES["pmac"]
 FAMILY_PARKER6K = FAMILY_CODES["parker6k"]
 
 # Divergence reasons (EpisodeMetrics.divergence_reason).
@@ -118,6 +121,10 @@ def closed_loop(
         if family == FAMILY_PMD:
             command = pmd_step(state, p, a, prof_pos[k], actual, prof_vel[k], prof_acc[k])
             if reason == OK and state[S_TRIPPED] != 0:
+                reason = MOTION_ERROR
+        elif family == FAMILY_PMAC:
+            command = pmac_step(state, p, a, prof_pos[k], actual, prof_vel[k], prof_acc[k])
+            if reason == OK and state[PMAC_TRIPPED] != 0:
                 reason = MOTION_ERROR
         elif family == FAMILY_PARKER6K:
             command = parker6k_step(state, p, a, prof_pos[k], actual, prof_vel[k], prof_acc[k])

@@ -52,3 +52,10 @@ def test_out_of_range_actions_are_refused(u):
         ParameterError, match=r"the action for kp must be a finite number in \[-1, 1\]"
     ):
         GAIN.from_unit(u)
+
+
+def test_signed_log_gain_is_off_at_the_bottom():
+    signed = ParamSpec("ixx30", -8388608, 8388607, 2000, "s24", log=True)
+    assert signed.from_unit(-1.0) == 0
+    assert signed.from_unit(1.0) == 8388607
+    assert signed.from_unit(signed.to_unit(2000)) == 2000

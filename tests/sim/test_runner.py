@@ -51,7 +51,19 @@ def python_traces(loop: ServoLoop, profile) -> tuple[int, int, list, list, list]
     )  # fmt: skip
 
 
-TWIN_PARAMS = {"pmd": ("MC2100", dict(kp=300, kd=2000, ki=40)), "parker6k": ("6250", {})}
+TWIN_PARAMS = {
+    "pmd": ("MC2100", dict(kp=300, kd=2000, ki=40)),
+    "parker6k": ("6250", {}),
+    "pmac": (
+        "TurboPMAC2",
+        dict(
+            proportional_gain=60000,
+            derivative_gain=3000,
+            integral_gain=1000,
+            fatal_following_error_limit=0,
+        ),
+    ),
+}
 
 
 @pytest.mark.parametrize("chip", sorted(TWIN_PARAMS))

@@ -29,6 +29,7 @@ class Parker6kFamily(ChipFamily):
     params_type = Parker6kParams
     assumptions_type = Parker6kAssumptions
     formats = _export.FORMATS
+    file_extensions = _export.FILE_EXTENSIONS
 
     def parameter_space(self, model: str) -> ParameterSpace:
         return parameter_space(model)
@@ -73,6 +74,9 @@ class Parker6kFamily(ChipFamily):
 
     def export(self, params: Parker6kParams, fmt: str, **kw: Any) -> str:
         return _export.export(params, fmt, **kw)
+
+    def import_params(self, text: str, fmt: str, model: str | None = None) -> Any:
+        return _export.import_params(text, fmt, model)
 
     def from_json(self, text: str) -> _export.ParamFile:
         return _export.from_json(text)

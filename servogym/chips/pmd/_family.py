@@ -23,6 +23,7 @@ class PMDFamily(ChipFamily):
     params_type = PMDParams
     assumptions_type = PMDAssumptions
     formats = _export.FORMATS
+    file_extensions = _export.FILE_EXTENSIONS
 
     def parameter_space(self, model: str) -> ParameterSpace:
         return parameter_space(model)
@@ -65,6 +66,9 @@ class PMDFamily(ChipFamily):
 
     def export(self, params: PMDParams, fmt: str, **kw: Any) -> str:
         return _export.export(params, fmt, **kw)
+
+    def import_params(self, text: str, fmt: str, model: str | None = None) -> Any:
+        return _export.import_params(text, fmt, model)
 
     def from_json(self, text: str) -> _export.ParamFile:
         return _export.from_json(text)

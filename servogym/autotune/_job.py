@@ -1,0 +1,292 @@
+"""The main job: run a study, then write the tuned set, its exports and the reports."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from servogym.autotune._problem import Constraints, TuneProblem
+from servogym.autotune._session import (
+    ProgressCallback,
+    Session,
+    TuneError,
+    best_trial,
+    default_storage_url,
+    quiet_optuna,
+)
+from servogym.autotune._space import SearchSpace
+from servogym.autotune._tuners import get_tuner
+from servogym.chips._family import get_chip
+from servogym.sim._scenario import Evaluator, MoveSpec, Scenario
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyResult:
+    """What a study produced.
+
+    Attributes:
+        problem: The problem tuned.
+        tuner: Tuner name.
+        trials: Every trial of the study (Optuna ``FrozenTrial``), in order.
+        best: The best trial (see :func:`servogym.autotune.best_trial`).
+        feasible: Whether the best trial meets the constraints.
+        best_values: Its register values (chip units, every register).
+        best_params: Its parameter set.
+        storage: Storage URL of the study.
+        study_name: Name of the study in the storage.
+        elapsed_s: Wall time of this run (s).
+    """
+
+    problem: TuneProblem
+    tuner: str
+    trials: list[Any]
+    best: Any
+    feasible: bool
+    best_values: dict[str, int]
+    best_params: Any
+    storage: str | None
+    study_name: str
+    elapsed_s: float
+
+
+def run_study(
+    problem: TuneProblem,
+    tuner: str,
+    budget: int,
+    *,
+    storage: str | None,
+    study_name: str = "servogym",
+    resume: bool = False,
+    n_workers: int | None = None,
+    batch_size: int | None = None,
+    warm_start: Mapping[str, int] | None = None,
+    progress: ProgressCallback | None = None,
+    evaluator_factory: Callable[[Any], Any] = Evaluator,
+) -> StudyResult:
+    """Tune ``problem`` with a registered tuner and return the best set.
+
+    Args:
+        problem: What to tune.
+        tuner: A name of :func:`servogym.autotune.tuner_names`.
+        budget: Evaluations the study holds in the end (see docs/autotune.md).
+        storage: Optuna RDB URL (``sqlite:///path/study.db``); ``None``: in memory only.
+        study_name: Study name in that storage.
+        resume: Continue an existing study of that name.
+        n_workers: Evaluation threads; default every core.
+        batch_size: Trials per sampler batch (default 8; a resume keeps the stored one).
+        warm_start: Register values evaluated first (a new study only).
+        progress: Called after every trial with (done, budget, best cost).
+        evaluator_factory: One evaluator per thread (tests pass a cheaper one).
+    """
+    t0 = time.perf_counter()
+    tuner_obj = get_tuner(tuner)
+    tuner_obj.check(problem, budget)
+    workers = n_workers if n_workers is not None else (os.cpu_count() or 1)
+    with quiet_optuna():
+        session = Session(
+            problem,
+            budget=budget,
+            storage=storage,
+            study_name=study_name,
+            tuner_name=tuner,
+            resume=resume,
+            n_workers=workers,
+            batch_size=batch_size,
+            warm_start=warm_start,
+            progress=progress,
+            evaluator_factory=evaluator_factory,
+        )
+        with session:
+            if session.remaining > 0:
+                tuner_obj.run(session)
+        trials = session.trials()
+    best, feasible = best_trial(trials, problem.multi_objective)
+    values = {k: int(v) for k, v in best.user_attrs["registers"].items()}
+    return StudyResult(
+        problem=problem,
+        tuner=tuner,
+        trials=list(trials),
+        best=best,
+        feasible=feasible,
+        best_values=values,
+        best_params=problem.space.make_params(values),
+        storage=storage,
+        study_name=study_name,
+        elapsed_s=time.perf_counter() - t0,
+    )
+
+
+def parse_assignments(items: list[str] | None, what: str) -> dict[str, str]:
+    """``["k=v", ...]`` -> ``{"k": "v"}``, with a clear error for a malformed item."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise TuneError(f"{what} takes NAME=VALUE (e.g. {what} bias=0); got {item!r}.")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _number(text: str, name: str, what: str) -> int | float:
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        raise TuneError(f"{what} {name}= needs a number; got {name}={text!r}.") from None
+
+
+def read_param_file(path: str | Path, chip_model: str) -> dict[str, int]:
+    """Register values of a servogym JSON parameter file written for ``chip_model``.
+
+    The family's ``import_params`` reads and validates it.
+    """
+    family, model = get_chip(chip_model)
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise TuneError(f"cannot read the warm-start file {str(path)!r}: {exc}") from None
+    try:
+        params = family.import_params(text, "json")
+    except ValueError as exc:
+        raise TuneError(f"the warm-start file {str(path)!r} cannot be used: {exc}") from None
+    if params.model != model:
+        raise TuneError(
+            f"the warm-start file {str(path)!r} is for chip {params.model}, not {model}."
+        )
+    space = family.parameter_space(model)
+    return {name: int(getattr(params, name)) for name in space}
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneConfig:
+    """Everything ``servogym tune`` is told (see :func:`tune`).
+
+    Attributes:
+        chip: Chip model.
+        plant: Plant family.
+        out: Run folder.
+        budget: Evaluations.
+        tuner: Tuner name.
+        plant_params: Fixed plant parameters (``{"payload_kg": 3.0}``).
+        seed: Seed of the study and the plant draws.
+        workers: Evaluation threads (default every core).
+        robust: K plant instances per evaluation (1: the nominal plant).
+        robust_mode: ``"mean"`` or ``"worst"`` over the K.
+        constraints: Report constraints to Optuna.
+        max_following_error: Constraint limit (counts; ``None``: 1 % of the longest move).
+        max_saturation: Constraint limit (fraction of ticks at the motor limit).
+        multi_objective: Minimize cost and peak following error (a Pareto front).
+        warm_start: A parameter file to evaluate first.
+        storage: Optuna RDB URL (default ``sqlite:///OUT/study.db``).
+        resume: Continue the run folder's study.
+        fix: Registers held at a value.
+        search: Registers to search (default every tunable one).
+        moves: Evaluation moves (default the plant's).
+        batch_size: Trials per sampler batch.
+        study_name: Study name (default ``servogym-<folder name>``).
+    """
+
+    chip: str
+    plant: str
+    out: Path
+    budget: int
+    tuner: str = "tpe"
+    plant_params: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    seed: int = 0
+    workers: int | None = None
+    robust: int = 1
+    robust_mode: str = "mean"
+    constraints: bool = True
+    max_following_error: float | None = None
+    max_saturation: float = 0.05
+    multi_objective: bool = False
+    warm_start: Path | None = None
+    storage: str | None = None
+    resume: bool = False
+    fix: Mapping[str, int] = dataclasses.field(default_factory=dict)
+    search: tuple[str, ...] | None = None
+    moves: tuple[MoveSpec, ...] = ()
+    batch_size: int | None = None
+    study_name: str | None = None
+
+    def problem(self) -> TuneProblem:
+        """The :class:`TuneProblem` this configuration describes."""
+        from servogym.autotune._problem import DEFAULT_MULTI_OBJECTIVES
+
+        scenario = Scenario(
+            self.chip, self.plant, plant_values=dict(self.plant_params), moves=self.moves
+        )
+        return TuneProblem(
+            scenario=scenario,
+            space=SearchSpace.for_chip(scenario.chip_model, self.search, self.fix),
+            n_plants=self.robust,
+            robust_mode=self.robust_mode,
+            constraints=Constraints(
+                enabled=self.constraints,
+                max_following_error=self.max_following_error,
+                max_saturation=self.max_saturation,
+            ),
+            objectives=DEFAULT_MULTI_OBJECTIVES if self.multi_objective else ("cost",),
+            seed=self.seed,
+        )
+
+
+def tune(
+    config: TuneConfig, progress: ProgressCallback | None = None
+) -> tuple[StudyResult, dict[str, Any]]:
+    """Run ``servogym tune``: the study, then every output file in ``config.out``.
+
+    Returns:
+        The study result and the summary written to ``summary.json``.
+    """
+    from servogym.autotune._report import write_outputs
+
+    problem = config.problem()
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    storage = config.storage or default_storage_url(out)
+    warm = None
+    if config.warm_start is not None:
+        warm = read_param_file(config.warm_start, problem.scenario.chip_model)
+    result = run_study(
+        problem,
+        config.tuner,
+        config.budget,
+        storage=storage,
+        study_name=config.study_name or f"servogym-{out.resolve().name}",
+        resume=config.resume,
+        n_workers=config.workers,
+        batch_size=config.batch_size,
+        warm_start=warm,
+        progress=progress,
+    )
+    summary = write_outputs(result, out, config)
+    return result, summary
+
+
+def parse_plant_params(items: list[str] | None) -> dict[str, int | float]:
+    """``--plant-param k=v`` items as numbers."""
+    return {
+        k: _number(v, k, "--plant-param")
+        for k, v in parse_assignments(items, "--plant-param").items()
+    }
+
+
+def parse_fix(items: list[str] | None) -> dict[str, int]:
+    """``--fix k=v`` items as integers (chip registers hold integers)."""
+    out = {}
+    for k, v in parse_assignments(items, "--fix").items():
+        try:
+            out[k] = int(v)
+        except ValueError:
+            raise TuneError(
+                f"--fix {k}= needs an integer (a chip register); got {k}={v!r}."
+            ) from None
+    return out

@@ -1,0 +1,243 @@
+"""What a tuner optimizes: a scenario, the plant instances, the objective and the constraints.
+
+One *evaluation* (one trial, one unit of the budget) runs one parameter set through the
+scenario's moves on each of the problem's K plant instances (K = 1 unless robust) and
+aggregates: the cost is the mean or worst case of the K episode costs (``robust_cost``), the
+safety figures are the worst over the K instances.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from servogym.autotune._space import SearchSpace
+from servogym.chips._space import ParameterError
+from servogym.sim._scenario import Evaluation, Evaluator, Scenario, robust_cost
+
+OBJECTIVES: dict[str, str] = {
+    "cost": "the scenario cost of docs/cost.md (mean or worst over the plant instances)",
+    "max_following_error": "largest following error over moves and instances (counts)",
+    "saturation_fraction": "largest fraction of ticks at the motor limit over instances",
+    "rms_command": "largest RMS motor command over moves and instances (fraction of full scale)",
+    "chatter": "largest mean command change per tick over moves and instances",
+    "settling_time": "longest settling time over moves and instances (s)",
+}
+"""What a (multi-)objective study can minimize."""
+
+DEFAULT_MULTI_OBJECTIVES = ("cost", "max_following_error")
+"""The two objectives of ``--multi-objective``: the overall cost against the peak error."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Constraints:
+    """Limits a tuned set must meet; Optuna treats a trial as feasible when all hold.
+
+    Attributes:
+        enabled: Whether constraints are reported to Optuna at all.
+        max_following_error: Largest allowed following error (counts); ``None``: 1 % of
+            the longest move of the scenario.
+        max_saturation: Largest allowed fraction of ticks at the motor limit.
+        no_divergence: Whether a diverged episode makes a trial infeasible.
+    """
+
+    enabled: bool = True
+    max_following_error: float | None = None
+    max_saturation: float = 0.05
+    no_divergence: bool = True
+
+    def __post_init__(self) -> None:
+        if self.max_following_error is not None and not self.max_following_error > 0:
+            raise ParameterError(
+                "max_following_error must be > 0 counts (or None for 1 % of the longest move); "
+                f"got max_following_error={self.max_following_error!r}."
+            )
+        if not 0.0 <= self.max_saturation <= 1.0:
+            raise ParameterError(
+                "max_saturation must satisfy 0 <= max_saturation <= 1; "
+                f"got max_saturation={self.max_saturation!r}."
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """One parameter set evaluated on every plant instance of a problem.
+
+    Attributes:
+        values: The chip values of the set (every register).
+        cost: Aggregated cost (mean or worst over instances).
+        costs: Cost on each instance.
+        n_diverged: Number of instances on which the episode diverged.
+        max_following_error: Largest following error over moves and instances (counts).
+        saturation_fraction: Largest saturation fraction over instances.
+        rms_command, chatter, settling_time: Largest over moves and instances.
+    """
+
+    values: dict[str, int]
+    cost: float
+    costs: tuple[float, ...]
+    n_diverged: int
+    max_following_error: float
+    saturation_fraction: float
+    rms_command: float
+    chatter: float
+    settling_time: float
+
+    def objective(self, name: str) -> float:
+        """The value of one of :data:`OBJECTIVES`."""
+        return float(getattr(self, name))
+
+    def to_attrs(self) -> dict[str, Any]:
+        """JSON-ready, for a trial's user attributes."""
+        return dataclasses.asdict(self) | {"costs": list(self.costs)}
+
+    @classmethod
+    def from_attrs(cls, attrs: Mapping[str, Any]) -> Outcome:
+        """Inverse of :meth:`to_attrs`."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        kw = {n: attrs[n] for n in names}
+        kw["costs"] = tuple(kw["costs"])
+        kw["values"] = {k: int(v) for k, v in kw["values"].items()}
+        return cls(**kw)
+
+
+def aggregate(values: Mapping[str, int], evaluations: Sequence[Evaluation], mode: str) -> Outcome:
+    """Combine the evaluations of one set on each plant instance into an :class:`Outcome`."""
+    metrics = [m for e in evaluations for m in e.metrics]
+    return Outcome(
+        values=dict(values),
+        cost=robust_cost(evaluations, mode),
+        costs=tuple(float(e.cost) for e in evaluations),
+        n_diverged=sum(bool(e.diverged) for e in evaluations),
+        max_following_error=float(max(e.max_following_error for e in evaluations)),
+        saturation_fraction=float(max(e.saturation_fraction for e in evaluations)),
+        rms_command=float(max(m.rms_command for m in metrics)),
+        chatter=float(max(m.chatter for m in metrics)),
+        settling_time=float(max(m.settling_time for m in metrics)),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneProblem:
+    """A tuning problem: what every tuner of this package is given.
+
+    Attributes:
+        scenario: Chip model, plant family, fixed plant values and moves. Its ``randomise``
+            flag is ignored: ``n_plants`` decides.
+        space: The searched registers (:class:`SearchSpace`).
+        n_plants: K, the plant instances each evaluation runs on. 1: the nominal plant
+            (with the scenario's fixed plant values). K > 1: K instances drawn once, with
+            ``seed``, from the plant family's distribution at ``sample_scale``, the same K
+            for every trial (common random numbers: trials compare on equal terms).
+        robust_mode: ``"mean"`` or ``"worst"``: how the K costs aggregate.
+        sample_scale: Width of the plant distribution (0 .. 1) for K > 1.
+        constraints: Limits reported to Optuna (:class:`Constraints`).
+        objectives: What the study minimizes: ``("cost",)``, or several of
+            :data:`OBJECTIVES` for a multi-objective study with a Pareto front.
+        seed: Seeds the plant draws (and, in the tuners, the samplers).
+    """
+
+    scenario: Scenario
+    space: SearchSpace
+    n_plants: int = 1
+    robust_mode: str = "mean"
+    sample_scale: float = 1.0
+    constraints: Constraints = Constraints()
+    objectives: tuple[str, ...] = ("cost",)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.n_plants, bool) or not isinstance(self.n_plants, int):
+            raise ParameterError(
+                f"n_plants must be an integer >= 1; got n_plants={self.n_plants!r}."
+            )
+        if self.n_plants < 1:
+            raise ParameterError(f"n_plants must be >= 1; got n_plants={self.n_plants}.")
+        if self.robust_mode not in ("mean", "worst"):
+            raise ParameterError(
+                f"robust_mode must be 'mean' or 'worst'; got robust_mode={self.robust_mode!r}."
+            )
+        if not 0.0 <= self.sample_scale <= 1.0:
+            raise ParameterError(
+                f"sample_scale must satisfy 0 <= sample_scale <= 1; got {self.sample_scale!r}."
+            )
+        if not self.objectives or len(set(self.objectives)) != len(self.objectives):
+            raise ParameterError(
+                f"objectives must be distinct names from {', '.join(OBJECTIVES)}; "
+                f"got objectives={self.objectives!r}."
+            )
+        for name in self.objectives:
+            if name not in OBJECTIVES:
+                raise ParameterError(
+                    f"objectives must be names from {', '.join(OBJECTIVES)}; got {name!r}."
+                )
+        if self.space.chip_model != self.scenario.chip_model:
+            raise ParameterError(
+                f"the search space is for {self.space.chip_model} but the scenario's chip is "
+                f"{self.scenario.chip_model}; build both for the same chip model."
+            )
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ParameterError(f"seed must be an integer >= 0; got seed={self.seed!r}.")
+
+    @property
+    def multi_objective(self) -> bool:
+        """Whether the study has more than one objective."""
+        return len(self.objectives) > 1
+
+    def nominal_plant(self) -> dict[str, float]:
+        """The nominal plant instance with the scenario's fixed values."""
+        return dataclasses.replace(self.scenario, randomise=False).draw_plant(
+            np.random.default_rng(0)
+        )
+
+    def plant_instances(self) -> list[dict[str, float]]:
+        """The K plant instances every evaluation runs on (deterministic in ``seed``)."""
+        if self.n_plants == 1:
+            return [self.nominal_plant()]
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 0x504C414E]))
+        sc = dataclasses.replace(self.scenario, randomise=True, sample_scale=self.sample_scale)
+        return [sc.draw_plant(rng) for _ in range(self.n_plants)]
+
+    def following_error_limit(self, evaluator: Evaluator) -> float:
+        """The following-error limit in counts (1 % of the longest move unless given)."""
+        if self.constraints.max_following_error is not None:
+            return float(self.constraints.max_following_error)
+        cpu = evaluator.plant.io.counts_per_unit
+        return 0.01 * max(abs(m.distance) for m in self.scenario.moves) * cpu
+
+    def constraint_values(self, outcome: Outcome, fe_limit: float) -> dict[str, float]:
+        """Optuna constraint values (feasible when every value is <= 0)."""
+        c = self.constraints
+        out = {
+            "max_following_error": outcome.max_following_error - fe_limit,
+            "saturation_fraction": outcome.saturation_fraction - c.max_saturation,
+        }
+        if c.no_divergence:
+            out["diverged"] = float(outcome.n_diverged)
+        return out
+
+    def objective_values(self, outcome: Outcome) -> list[float]:
+        """The study's objective values of an outcome."""
+        return [outcome.objective(n) for n in self.objectives]
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready description (stored with the study and in summary.json)."""
+        sc = self.scenario
+        return {
+            "chip_model": sc.chip_model,
+            "plant": sc.plant,
+            "plant_values": dict(sc.plant_values),
+            "moves": [dataclasses.asdict(m) for m in sc.moves],
+            "weights": dataclasses.asdict(sc.weights),
+            "substeps": sc.substeps,
+            "space": self.space.describe(),
+            "n_plants": self.n_plants,
+            "robust_mode": self.robust_mode,
+            "sample_scale": self.sample_scale,
+            "constraints": dataclasses.asdict(self.constraints),
+            "objectives": list(self.objectives),
+            "seed": self.seed,
+        }

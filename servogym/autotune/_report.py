@@ -1,0 +1,284 @@
+"""Output files of ``servogym tune``: tuned set, exports, trials, plots and summary."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from servogym import __version__
+from servogym.autotune._problem import TuneProblem
+from servogym.autotune._session import is_feasible, pareto_front, scored_trials
+from servogym.autotune._space import UNIT_PREFIX
+from servogym.chips._family import get_chip
+from servogym.sim._scenario import Evaluation, Evaluator
+
+TABLE_METRICS = (
+    ("cost", "cost"),
+    ("diverged", "diverged"),
+    ("max_following_error", "max following error (counts)"),
+    ("saturation_fraction", "saturation (fraction of ticks)"),
+    ("overshoot", "overshoot (counts)"),
+    ("settling_time", "settling time (s)"),
+    ("steady_state_error", "steady-state error (counts)"),
+    ("rms_command", "RMS command (fraction)"),
+    ("chatter", "chatter (fraction/tick)"),
+)
+"""Rows of the default-vs-tuned table: (key of :func:`evaluation_metrics`, label)."""
+
+
+def export_names(family: Any) -> dict[str, str]:
+    """File name of each of the chip family's export formats: ``best_params.json``, ...
+
+    A format whose extension (``family.file_extensions``) is unique and not ``.txt`` gets
+    ``best_params<ext>``; the others ``best_params_<format><ext>`` (``best_params_host.txt``).
+    """
+    exts = {f: family.file_extensions.get(f, ".txt") for f in family.formats}
+    out = {}
+    for fmt, ext in exts.items():
+        unique = list(exts.values()).count(ext) == 1 and ext != ".txt"
+        out[fmt] = f"best_params{ext}" if unique else f"best_params_{fmt}{ext}"
+    return out
+
+
+def evaluation_metrics(evaluations: list[Evaluation], mode: str) -> dict[str, float]:
+    """Figures of a set over the plant instances: the aggregated cost, worst of the rest."""
+    from servogym.sim._scenario import robust_cost
+
+    metrics = [m for e in evaluations for m in e.metrics]
+    return {
+        "cost": robust_cost(evaluations, mode),
+        "diverged": float(sum(e.diverged for e in evaluations)),
+        "max_following_error": max(e.max_following_error for e in evaluations),
+        "saturation_fraction": max(e.saturation_fraction for e in evaluations),
+        "overshoot": max(m.overshoot for m in metrics),
+        "settling_time": max(m.settling_time for m in metrics),
+        "steady_state_error": max(m.steady_state_error for m in metrics),
+        "rms_command": max(m.rms_command for m in metrics),
+        "chatter": max(m.chatter for m in metrics),
+    }
+
+
+def evaluate_on_problem(problem: TuneProblem, params: Any) -> tuple[list[Evaluation], Evaluation]:
+    """A set on every plant instance of the problem, and on the nominal one with traces."""
+    ev = Evaluator(problem.scenario)
+    evaluations = [ev.evaluate(params, plant) for plant in problem.plant_instances()]
+    nominal = ev.evaluate(params, problem.nominal_plant(), traces=True)
+    return evaluations, nominal
+
+
+def write_trials_csv(trials: list[Any], names: tuple[str, ...], path: Path) -> None:
+    """Every trial: number, kind, state, objective values, constraints, registers, u."""
+    registers: list[str] = []
+    for t in trials:
+        for key in t.user_attrs.get("registers", {}):
+            if key not in registers:
+                registers.append(key)
+    n_obj = max((len(t.values) for t in trials if t.values), default=1)
+    value_cols = ["cost"] + [f"objective_{i}" for i in range(1, n_obj)]
+    outcome_cols = ["n_diverged", "max_following_error", "saturation_fraction",
+                    "rms_command", "chatter", "settling_time"]  # fmt: skip
+    header = (
+        ["number", "kind", "state", *value_cols, "feasible", *outcome_cols]
+        + registers
+        + [UNIT_PREFIX + n for n in names]
+        + ["duration_s", "note"]
+    )
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for t in trials:
+            values = list(t.values) if t.values else []
+            values += [""] * (n_obj - len(values))
+            outcome = t.user_attrs.get("outcome", {})
+            regs = t.user_attrs.get("registers", {})
+            duration = t.duration.total_seconds() if t.duration is not None else ""
+            note = t.user_attrs.get("note") or t.user_attrs.get("error") or ""
+            w.writerow(
+                [t.number, t.user_attrs.get("kind", ""), t.state.name, *values,
+                 is_feasible(t) if t.values else ""]
+                + [outcome.get(c, "") for c in outcome_cols]
+                + [regs.get(r, "") for r in registers]
+                + [t.params.get(UNIT_PREFIX + n, "") for n in names]
+                + [duration, note]
+            )  # fmt: skip
+
+
+def convergence_figure(trials: list[Any], default_cost: float, title: str):
+    """Cost of each scored trial and the best so far, against the evaluation number."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8.0, 5.0))
+    ax = fig.subplots()
+    scored = scored_trials(trials)
+    for ok, style in (
+        (True, {"color": "tab:blue", "marker": "o", "label": "trial (feasible)"}),
+        (False, {"color": "tab:red", "marker": "x", "label": "trial (infeasible)"}),
+    ):
+        pts = [(t.number + 1, t.values[0]) for t in scored if is_feasible(t) == ok]
+        if pts:
+            ax.scatter(*zip(*pts, strict=True), s=10, alpha=0.6, **style)
+    best, bx, by = math.inf, [], []
+    for t in scored:
+        if is_feasible(t) and t.values[0] < best:
+            best = t.values[0]
+        if math.isfinite(best):
+            bx.append(t.number + 1)
+            by.append(best)
+    if bx:
+        bx.append(len(trials))
+        by.append(by[-1])
+        ax.step(bx, by, where="post", color="k", lw=1.5, label="best so far (feasible)")
+    experiments = [t.number + 1 for t in trials if t.user_attrs.get("kind") == "experiment"]
+    if experiments:
+        ax.plot(experiments, [default_cost] * len(experiments), "|", color="tab:gray",
+                ms=12, label="experiment (no cost)")  # fmt: skip
+    ax.axhline(default_cost, color="tab:orange", ls="--", lw=1, label="chip defaults")
+    ax.set_yscale("log")
+    ax.set_xlabel("evaluation")
+    ax.set_ylabel("cost (log scale)")
+    ax.grid(True, alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=5)
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def pareto_figure(trials: list[Any], objectives: tuple[str, ...]):
+    """Objectives 0 and 1 of every feasible scored trial, the Pareto front highlighted."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.5, 4.5))
+    ax = fig.subplots()
+    scored = [t for t in scored_trials(trials) if is_feasible(t)] or scored_trials(trials)
+    ax.scatter([t.values[0] for t in scored], [t.values[1] for t in scored], s=8, alpha=0.4,
+               label="trials")  # fmt: skip
+    front = sorted(pareto_front(scored), key=lambda t: t.values[0])
+    ax.plot([t.values[0] for t in front], [t.values[1] for t in front], "o-", color="k",
+            ms=4, label="Pareto front")  # fmt: skip
+    ax.set_xscale("log")
+    ax.set_xlabel(objectives[0])
+    ax.set_ylabel(objectives[1])
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def write_outputs(result: Any, out: Path, config: Any) -> dict[str, Any]:
+    """Write every output file of a tuned run; return the summary (also summary.json)."""
+    from servogym.sim._plot import plot_response
+
+    problem: TuneProblem = result.problem
+    family, model = get_chip(problem.scenario.chip_model)
+    mode = problem.robust_mode
+    default_params = problem.scenario.default_params()
+    d_evals, d_nominal = evaluate_on_problem(problem, default_params)
+    t_evals, t_nominal = evaluate_on_problem(problem, result.best_params)
+    default_metrics = evaluation_metrics(d_evals, mode)
+    tuned_metrics = evaluation_metrics(t_evals, mode)
+
+    files: dict[str, str] = {}
+    notes = {
+        "tuner": result.tuner,
+        "seed": problem.seed,
+        "n_trials": len(result.trials),
+        "best_trial": result.best.number,
+        "feasible": result.feasible,
+        "cost": tuned_metrics["cost"],
+        "default_cost": default_metrics["cost"],
+        "scenario": problem.describe(),
+        "study": {"storage": result.storage, "name": result.study_name},
+    }
+    names = export_names(family)
+    for fmt, name in names.items():
+        kw: dict[str, Any] = {}
+        if fmt == "json":
+            kw = {
+                "assumptions": problem.scenario.assumptions,
+                "metrics": {"tuned": tuned_metrics, "default": default_metrics},
+                "notes": notes,
+            }
+        (out / name).write_text(family.export(result.best_params, fmt, **kw))
+        files[fmt] = name
+
+    write_trials_csv(result.trials, problem.space.names, out / "trials.csv")
+    files["trials"] = "trials.csv"
+    title = (
+        f"{model} on {problem.scenario.plant} (nominal plant): chip defaults vs "
+        f"{result.tuner} (cost {default_metrics['cost']:.3g} -> {tuned_metrics['cost']:.3g})"
+    )
+    plot_response([("default", d_nominal), ("tuned", t_nominal)], out / "response.png", title)
+    files["response_plot"] = "response.png"
+    fig = convergence_figure(
+        result.trials,
+        default_metrics["cost"],
+        f"{result.tuner} on {model} / {problem.scenario.plant}: {len(result.trials)} evaluations",
+    )
+    fig.savefig(out / "convergence.png", dpi=110)
+    files["convergence_plot"] = "convergence.png"
+    if problem.multi_objective:
+        pareto_figure(result.trials, problem.objectives).savefig(out / "pareto.png", dpi=110)
+        files["pareto_plot"] = "pareto.png"
+
+    summary = {
+        "servogym_version": __version__,
+        "chip_model": model,
+        "chip_family": family.name,
+        "plant": problem.scenario.plant,
+        "tuner": result.tuner,
+        "seed": problem.seed,
+        "budget": getattr(config, "budget", len(result.trials)),
+        "n_trials": len(result.trials),
+        "kinds": _count_kinds(result.trials),
+        "best_trial": result.best.number,
+        "feasible": result.feasible,
+        "objectives": list(problem.objectives),
+        "best_values": list(result.best.values),
+        "default": default_metrics,
+        "tuned": tuned_metrics,
+        "best_params": result.best_values,
+        "problem": problem.describe(),
+        "config": _jsonable(dataclasses.asdict(config)) if config is not None else None,
+        "storage": result.storage,
+        "study_name": result.study_name,
+        "elapsed_s": result.elapsed_s,
+        "files": files,
+    }
+    if problem.multi_objective:
+        scored = scored_trials(result.trials)
+        front = pareto_front([t for t in scored if is_feasible(t)] or scored)
+        summary["pareto_front"] = [
+            {"trial": t.number, "values": list(t.values)}
+            for t in sorted(front, key=lambda t: t.values[0])
+        ]
+    files["summary"] = "summary.json"
+    (out / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
+    return summary
+
+
+def _count_kinds(trials: list[Any]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for t in trials:
+        kind = t.user_attrs.get("kind", "?")
+        out[kind] = out.get(kind, 0) + 1
+    return out
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj

@@ -1,0 +1,725 @@
+"""Export and import of Turbo PMAC parameter sets: JSON with provenance, and I-variable files.
+
+Two formats; each imports back to the identical :class:`PMACParams`:
+
+* ``"json"``: a parameter file with provenance (chip model, spec version, assumptions,
+  creation time, servogym version, optional metrics and notes), the layout every servogym
+  family shares.
+* ``"ivar"``: the lines a Turbo PMAC takes for one motor, ``I130=2000``, under ``;`` comment
+  lines with the provenance. Notch coefficients are written as exact decimals of their 24-bit
+  words (``I136=-1.86072540283203125``); the servo clock as the global ``I7000..I7002``.
+
+Every export validates the set first and refuses an illegal one with the parameter, the value
+and the legal range: the controller itself would roll an out-of-range value over silently.
+:func:`from_ivar` also reads a file saved by the controller: it takes the motor's registers
+and ignores every other variable, comment and program buffer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import difflib
+import json
+import re
+import warnings
+from collections.abc import Mapping
+from fractions import Fraction
+from typing import Any
+
+import numpy as np
+
+from servogym import __version__
+from servogym.chips._space import ParameterError
+from servogym.chips.pmac._params import (
+    ASSUMPTION_CHOICES,
+    ASSUMPTION_IDS,
+    CHIP_MODELS,
+    COEFFICIENT_FIELDS,
+    COEFFICIENT_FRACTION_BITS,
+    FIELDS,
+    GLOBAL_FIELDS,
+    I_VARIABLES,
+    SPEC_VERSION,
+    PMACAssumptions,
+    PMACChipModel,
+    PMACParams,
+    coefficient_raw,
+    get_model,
+    ivar_name,
+    parameter_space,
+)
+
+__all__ = [
+    "FILE_EXTENSIONS",
+    "FILE_FORMAT",
+    "FILE_FORMAT_VERSION",
+    "FORMATS",
+    "ParamFile",
+    "export",
+    "from_ivar",
+    "from_json",
+    "import_params",
+    "read_header",
+    "to_ivar",
+    "to_json",
+]
+
+FORMATS: tuple[str, ...] = ("json", "ivar")
+"""The export formats, in the order :func:`export` documents them."""
+
+FILE_EXTENSIONS: dict[str, str] = {"json": ".json", "ivar": ".pmc"}
+"""Suggested file extension of each format."""
+
+FILE_FORMAT = "servogym-params"
+"""Value of the ``format`` key of a JSON parameter file."""
+
+FILE_FORMAT_VERSION = 1
+"""Version of the JSON parameter-file layout this module writes and reads."""
+
+CHIP_FAMILY = "pmac"
+
+# --------------------------------------------------------------------------------------
+# Shared checks
+# --------------------------------------------------------------------------------------
+
+
+def _legal_params(params: PMACParams | Mapping[str, Any]) -> PMACParams:
+    """Validate ``params`` again (a mapping is built through :meth:`PMACParams.from_dict`)."""
+    if isinstance(params, PMACParams):
+        return PMACParams(**{f.name: getattr(params, f.name) for f in dataclasses.fields(params)})
+    if isinstance(params, Mapping):
+        return PMACParams.from_dict(params)
+    raise ParameterError(
+        f"params must be a PMACParams or a mapping of register names to values; "
+        f"got params of type {type(params).__name__}."
+    )
+
+
+def _check_assumption_names(values: Mapping[str, Any], where: str, *, require_all: bool) -> None:
+    names = list(ASSUMPTION_CHOICES)
+    for name in values:
+        if name not in ASSUMPTION_CHOICES:
+            close = difflib.get_close_matches(str(name), names, n=3)
+            hint = f" Did you mean {', '.join(close)}?" if close else ""
+            raise ParameterError(
+                f"{where} has an unknown assumption {name!r}; the assumptions are "
+                f"{', '.join(names)}.{hint}"
+            )
+    if require_all:
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise ParameterError(
+                f"{where} must give every assumption so the behaviour is pinned down; "
+                f"missing {', '.join(missing)}."
+            )
+
+
+def _legal_assumptions(
+    assumptions: PMACAssumptions | Mapping[str, str] | None,
+) -> PMACAssumptions:
+    if assumptions is None:
+        return PMACAssumptions()
+    if isinstance(assumptions, PMACAssumptions):
+        return assumptions
+    if isinstance(assumptions, Mapping):
+        _check_assumption_names(assumptions, "assumptions", require_all=False)
+        return PMACAssumptions(**assumptions)
+    raise ParameterError(
+        f"assumptions must be a PMACAssumptions, a mapping of assumption names or None; "
+        f"got assumptions of type {type(assumptions).__name__}."
+    )
+
+
+def _check_motor(chip: PMACChipModel, motor: Any, where: str = "") -> int:
+    at = f"{where}: " if where else ""
+    if isinstance(motor, bool) or not isinstance(motor, int | np.integer):
+        raise ParameterError(
+            f"{at}motor must be an integer with 1 <= motor <= {chip.n_motors} ({chip.name}); "
+            f"got motor={motor!r} of type {type(motor).__name__}."
+        )
+    if not 1 <= motor <= chip.n_motors:
+        raise ParameterError(
+            f"{at}motor must satisfy 1 <= motor <= {chip.n_motors} ({chip.name} addresses "
+            f"{chip.n_motors} motors); got motor={int(motor)}."
+        )
+    return int(motor)
+
+
+# --------------------------------------------------------------------------------------
+# Format 1: JSON parameter file
+# --------------------------------------------------------------------------------------
+
+_REQUIRED_KEYS = (
+    "format",
+    "format_version",
+    "chip_family",
+    "chip_model",
+    "sample_time_s",
+    "spec_version",
+    "assumptions",
+    "params",
+    "created",
+    "servogym_version",
+)
+_OPTIONAL_KEYS = ("metrics", "notes")
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamFile:
+    """A parameter file read by :func:`from_json`.
+
+    Attributes:
+        params: The parameter set, validated.
+        assumptions: The assumption switches the set was tuned under.
+        provenance: Every other top-level entry of the file: ``format``,
+            ``format_version``, ``chip_family``, ``chip_model``, ``sample_time_s``,
+            ``spec_version``, ``created``, ``servogym_version`` and, when present,
+            ``metrics`` and ``notes``.
+    """
+
+    params: PMACParams
+    assumptions: PMACAssumptions
+    provenance: dict[str, Any]
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"values of type {type(obj).__name__} cannot be written as JSON")
+
+
+def _json_object(value: Any, name: str) -> dict[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ParameterError(
+            f"{name} must be a mapping (written as a JSON object); got {name} of type "
+            f"{type(value).__name__}."
+        )
+    try:
+        return json.loads(json.dumps(dict(value), allow_nan=False, default=_json_default))
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(
+            f"{name} must hold only JSON values (str keys; str, int, finite float, bool, "
+            f"None, lists and mappings of them; NumPy scalars are converted): {exc}."
+        ) from None
+
+
+def _created_text(created: str | _dt.datetime | None) -> str:
+    if created is None:
+        return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+    if isinstance(created, _dt.datetime):
+        return created.isoformat()
+    if isinstance(created, str):
+        try:
+            _dt.datetime.fromisoformat(created)
+        except ValueError:
+            raise ParameterError(
+                f"created must be an ISO 8601 timestamp such as '2025-01-31T12:00:00+00:00'; "
+                f"got created={created!r}."
+            ) from None
+        return created
+    raise ParameterError(
+        f"created must be a datetime, an ISO 8601 string or None; got created of type "
+        f"{type(created).__name__}."
+    )
+
+
+def to_json(
+    params: PMACParams | Mapping[str, Any],
+    assumptions: PMACAssumptions | Mapping[str, str] | None = None,
+    *,
+    metrics: Mapping[str, Any] | None = None,
+    notes: Mapping[str, Any] | None = None,
+    created: str | _dt.datetime | None = None,
+) -> str:
+    """A JSON parameter file with provenance.
+
+    Args:
+        params: The parameter set (a :class:`PMACParams` or a mapping with ``model``);
+            validated again before writing.
+        assumptions: The assumption switches the set was tuned under; default all defaults.
+        metrics: Optional results to keep with the set (e.g. ``{"ise": 1.2e3}``).
+        notes: Optional free-form notes (e.g. plant, tuner, seed).
+        created: Creation time; default now (UTC). Pass a fixed value for reproducible files.
+
+    Returns:
+        The file text (UTF-8 JSON, 2-space indent, trailing newline).
+
+    Raises:
+        ParameterError: for an illegal set (naming parameter, value and range), unknown
+            assumptions, or metrics/notes that are not JSON values.
+    """
+    p = _legal_params(params)
+    a = _legal_assumptions(assumptions)
+    doc: dict[str, Any] = {
+        "format": FILE_FORMAT,
+        "format_version": FILE_FORMAT_VERSION,
+        "chip_family": CHIP_FAMILY,
+        "chip_model": p.model,
+        "sample_time_s": p.sample_time_s,
+        "spec_version": SPEC_VERSION,
+        "assumptions": a.to_dict(),
+        "params": p.to_dict(),
+        "created": _created_text(created),
+        "servogym_version": __version__,
+    }
+    if metrics is not None:
+        doc["metrics"] = _json_object(metrics, "metrics")
+    if notes is not None:
+        doc["notes"] = _json_object(notes, "notes")
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+
+def _expect(doc: Mapping[str, Any], key: str, kind: type | tuple[type, ...], what: str) -> Any:
+    value = doc[key]
+    if (isinstance(value, bool) and kind is not bool) or not isinstance(value, kind):
+        raise ParameterError(f"{key} must be {what}; got {key}={value!r}.")
+    return value
+
+
+def from_json(text: str | bytes) -> ParamFile:
+    """Read a JSON parameter file written by :func:`to_json`.
+
+    Args:
+        text: The file content.
+
+    Returns:
+        The validated parameter set, its assumptions and its provenance.
+
+    Raises:
+        ParameterError: if the text is not JSON, is not a servogym parameter file, has an
+            unknown ``format_version`` or a ``chip_family`` other than ``"pmac"``, misses or
+            adds top-level keys, lists an illegal or incomplete parameter set, or has
+            inconsistent ``chip_model`` / ``sample_time_s`` entries.
+
+    Warns:
+        UserWarning: if the file was written for another ``spec_version``.
+    """
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ParameterError(
+            f"a parameter file must be JSON; invalid JSON at line {exc.lineno} column "
+            f"{exc.colno}: {exc.msg}."
+        ) from None
+    if not isinstance(doc, dict):
+        raise ParameterError(
+            f"a parameter file must be a JSON object; got a JSON {type(doc).__name__}."
+        )
+    fmt = doc.get("format")
+    if fmt != FILE_FORMAT:
+        raise ParameterError(
+            f"format must be {FILE_FORMAT!r} (a servogym parameter file); got format={fmt!r}."
+        )
+    version = doc.get("format_version")
+    if type(version) is not int or version != FILE_FORMAT_VERSION:
+        raise ParameterError(
+            f"format_version must be {FILE_FORMAT_VERSION} (the only version servogym "
+            f"{__version__} reads); got format_version={version!r}."
+        )
+    family = doc.get("chip_family")
+    if family != CHIP_FAMILY:
+        raise ParameterError(
+            f"chip_family must be {CHIP_FAMILY!r} for a PMAC parameter file; got "
+            f"chip_family={family!r}. Read other families with their own importer."
+        )
+    missing = [k for k in _REQUIRED_KEYS if k not in doc]
+    if missing:
+        raise ParameterError(f"the parameter file misses the keys {', '.join(missing)}.")
+    allowed = _REQUIRED_KEYS + _OPTIONAL_KEYS
+    unknown = [k for k in doc if k not in allowed]
+    if unknown:
+        raise ParameterError(
+            f"the parameter file has unknown keys {', '.join(map(repr, unknown))}; "
+            f"format_version {FILE_FORMAT_VERSION} allows {', '.join(allowed)}."
+        )
+
+    chip = get_model(_expect(doc, "chip_model", str, "a PMAC chip model name"))
+    values = _expect(doc, "params", dict, "a JSON object of register values")
+    if values.get("model") != chip.name:
+        raise ParameterError(
+            f"params.model must equal chip_model {chip.name!r}; "
+            f"got params.model={values.get('model')!r}."
+        )
+    space = parameter_space(chip)
+    absent = [r for r in space if r not in values]
+    if absent:
+        raise ParameterError(
+            f"params must give every register of {chip.name} (an import takes no defaults); "
+            f"missing {', '.join(absent)}."
+        )
+    params = PMACParams.from_dict(values)
+    sample = _expect(doc, "sample_time_s", (int, float), "a number")
+    if sample != params.sample_time_s:
+        raise ParameterError(
+            f"sample_time_s must equal the period the clock registers and Ixx60 give "
+            f"({params.sample_time_s!r} s); got sample_time_s={sample!r}."
+        )
+    asm = _expect(doc, "assumptions", dict, "a JSON object of assumption switches")
+    _check_assumption_names(asm, "assumptions", require_all=True)
+    assumptions = PMACAssumptions(**asm)
+
+    spec = _expect(doc, "spec_version", str, "a string")
+    created = _expect(doc, "created", str, "an ISO 8601 timestamp string")
+    _created_text(created)
+    _expect(doc, "servogym_version", str, "a string")
+    for key in _OPTIONAL_KEYS:
+        if key in doc:
+            _expect(doc, key, dict, "a JSON object")
+    if spec != SPEC_VERSION:
+        warnings.warn(
+            f"the parameter file was written for spec_version {spec!r} but this servogym "
+            f"implements {SPEC_VERSION!r}: the registers load unchanged, but the emulated "
+            f"behaviour may differ from the one its metrics were measured with. Evaluate "
+            f"the set again to refresh its metrics.",
+            UserWarning,
+            stacklevel=2,
+        )
+    provenance = {k: v for k, v in doc.items() if k not in ("params", "assumptions")}
+    return ParamFile(params=params, assumptions=assumptions, provenance=provenance)
+
+
+# --------------------------------------------------------------------------------------
+# Format 2: I-variable file
+# --------------------------------------------------------------------------------------
+
+
+def coefficient_text(raw: int) -> str:
+    """The exact decimal of a 24-bit coefficient word ``raw / 2^22`` (e.g. ``-1.5``).
+
+    Every such value has a finite decimal expansion (at most 22 fractional digits), so the
+    controller receives exactly the word whatever rounding its parser uses.
+    """
+    raw = int(raw)
+    digits = COEFFICIENT_FRACTION_BITS
+    scaled = abs(raw) * 5**digits  # raw / 2^22 = raw * 5^22 / 10^22
+    whole, frac = divmod(scaled, 10**digits)
+    text = str(whole)
+    if frac:
+        text += "." + f"{frac:0{digits}d}".rstrip("0")
+    return "-" + text if raw < 0 else text
+
+
+def _header_lines(p: PMACParams, a: PMACAssumptions, motor: int) -> list[str]:
+    chip = p.chip
+    lines = [
+        f"servogym PMAC parameter set: I-variables of motor {motor}",
+        f"chip_model: {chip.name}",
+        f"chip_line: {chip.line}",
+        f"spec_version: {SPEC_VERSION}",
+        f"motor: {motor}",
+        f"servo_period_us: {p.servo_period_s * 1e6:.6f}",
+        f"sample_time_us: {p.sample_time_us:.6f}",
+        f"servogym_version: {__version__}",
+    ]
+    lines += [
+        f"assumption {ASSUMPTION_IDS[name]} {name}: {value}" for name, value in a.to_dict().items()
+    ]
+    lines += [
+        "Every value was checked against its legal range: the controller rolls an",
+        "out-of-range I-variable over silently. I7000..I7002 set the servo clock of every",
+        "motor on the controller.",
+    ]
+    return lines
+
+
+def to_ivar(
+    params: PMACParams | Mapping[str, Any],
+    motor: int = 1,
+    assumptions: PMACAssumptions | Mapping[str, str] | None = None,
+) -> str:
+    """The I-variable assignments that load the set into one motor, under a provenance header.
+
+    Args:
+        params: The parameter set; validated again first.
+        motor: Motor number ``xx`` (1 .. 32): ``proportional_gain`` becomes ``Ixx30``.
+        assumptions: Recorded in the header; default all defaults.
+
+    Returns:
+        The text: ``;`` comment lines, then one ``I130=2000 ; proportional_gain`` line per
+        register, in I-variable order; newline-terminated.
+
+    Raises:
+        ParameterError: for an illegal set (naming parameter, value and range) or motor.
+    """
+    p = _legal_params(params)
+    a = _legal_assumptions(assumptions)
+    motor = _check_motor(p.chip, motor)
+    out = [f"; {line}" for line in _header_lines(p, a, motor)]
+    for name in FIELDS:
+        value = getattr(p, name)
+        text = coefficient_text(value) if name in COEFFICIENT_FIELDS else str(value)
+        out.append(f"{ivar_name(name, motor)}={text} ; {name}")
+    return "\n".join(out) + "\n"
+
+
+_HEADER_KEY = re.compile(r"^\s*;+\s*([a-z_]+)\s*:\s*(\S.*?)\s*$")
+_HEADER_ASSUMPTION = re.compile(r"^\s*;+\s*assumption\s+PMAC-A\d+\s+([a-z_]+)\s*:\s*(\S+)\s*$")
+
+
+def read_header(text: str) -> dict[str, Any]:
+    """The provenance header of an I-variable file (``; key: value`` comment lines).
+
+    Returns:
+        The entries as strings (``chip_model``, ``spec_version``, ``motor``, ...), and under
+        ``"assumptions"`` a :class:`PMACAssumptions` when the header lists them. Empty if the
+        file has no header (e.g. one saved by the controller).
+
+    Raises:
+        ParameterError: if the header lists only some assumptions, or an unknown one.
+    """
+    fields: dict[str, Any] = {}
+    assumed: dict[str, str] = {}
+    for line in text.splitlines():
+        m = _HEADER_ASSUMPTION.match(line)
+        if m:
+            assumed.setdefault(m.group(1), m.group(2))
+            continue
+        m = _HEADER_KEY.match(line)
+        if m:
+            fields.setdefault(m.group(1), m.group(2))
+    if assumed:
+        _check_assumption_names(assumed, "the header", require_all=True)
+        fields["assumptions"] = PMACAssumptions(**assumed)
+    return fields
+
+
+# An assignment to one I-variable or a range of them (``I130..139=0``); the value runs to
+# the next blank. ``(?<![\w$.])`` keeps ``MI130``, ``PI130`` and ``$I1`` from matching.
+_ASSIGN = re.compile(r"(?<![\w$.])I\s*(\d+)(?:\s*\.\.\s*(\d+))?\s*=\s*([^\s]*)", re.IGNORECASE)
+_INTEGER = re.compile(r"^[-+]?\d+$")
+_HEX = re.compile(r"^\$[0-9a-fA-F]+$")
+_DECIMAL = re.compile(r"^[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$")
+_OPEN = re.compile(r"^\s*OPEN\b", re.IGNORECASE)
+_CLOSE = re.compile(r"^\s*CLOSE\b", re.IGNORECASE)
+
+
+def _ours(motor: int) -> dict[int, str]:
+    """I-variable number -> register, for ``motor``."""
+    return {int(ivar_name(f, motor)[1:]): f for f in FIELDS}
+
+
+def _parse_value(field: str, token: str, where: str) -> int:
+    ivar = I_VARIABLES[field]
+    if field in COEFFICIENT_FIELDS:
+        if not _DECIMAL.match(token):
+            raise ParameterError(
+                f"{where}: {field} (Ixx{ivar}) must be a decimal coefficient such as -1.86; "
+                f"got {token!r}."
+            )
+        return coefficient_raw(Fraction(token))
+    if _INTEGER.match(token):
+        return int(token)
+    if _HEX.match(token):
+        return int(token[1:], 16)
+    if _DECIMAL.match(token):
+        raise ParameterError(
+            f"{where}: {field} must be an integer (the controller would truncate "
+            f"{token!r} silently); got {field}={token!r}."
+        )
+    raise ParameterError(
+        f"{where}: {field} must be assigned a constant (decimal or $hex integer); got "
+        f"{token!r}. Expressions are not read."
+    )
+
+
+def _motors_in(assignments: list[tuple[int, int | None, str, str]]) -> list[int]:
+    suffixes = {n for f, n in I_VARIABLES.items() if f not in GLOBAL_FIELDS}
+    motors = set()
+    for first, last, _, _ in assignments:
+        for number in range(first, (last if last is not None else first) + 1):
+            if 100 <= number < 3300 and number % 100 in suffixes:
+                motors.add(number // 100)
+    return sorted(motors)
+
+
+def from_ivar(
+    text: str, model: str | PMACChipModel | None = None, motor: int | None = None
+) -> PMACParams:
+    """Read the registers of one motor from an I-variable file.
+
+    Reads what :func:`to_ivar` writes and what the controller saves: ``I130=2000`` lines
+    (several per line, ``I130..139=0`` ranges and ``$`` hex integers too), ``;`` comments.
+    Every other variable (I-variables of other motors or other functions, P, Q and M
+    variables) and the contents of program buffers (``OPEN PLC 1 ... CLOSE``) are ignored.
+
+    Args:
+        text: The file content.
+        model: Chip model; default the header's ``chip_model:``. Required when the file has
+            no header (a controller's file does not name its model). If both are given they
+            must agree.
+        motor: Motor number; default the header's ``motor:``, else the only motor whose
+            registers the file sets.
+
+    Returns:
+        The parameter set.
+
+    Raises:
+        ParameterError: naming the line, for a register set to a non-constant, a
+            non-integer where an integer belongs, an out-of-range value (with its range), a
+            register set twice to different values, or a register left unset.
+    """
+    header = read_header(text)
+    named = header.get("chip_model")
+    if model is None:
+        if named is None:
+            raise ParameterError(
+                f"the I-variable file names no chip model (no '; chip_model:' header); pass "
+                f"model=, one of {', '.join(CHIP_MODELS)}."
+            )
+        chip = get_model(named)
+    else:
+        chip = get_model(model)
+        if named is not None and get_model(named).name != chip.name:
+            raise ParameterError(
+                f"model={chip.name!r} disagrees with the file's header 'chip_model: {named}'; "
+                f"pass model={named!r}, or model=None to use the header."
+            )
+
+    assignments: list[tuple[int, int | None, str, str]] = []
+    in_buffer = False
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split(";", 1)[0]
+        if in_buffer:
+            in_buffer = not _CLOSE.match(line)
+            continue
+        if _OPEN.match(line):
+            in_buffer = True
+            continue
+        for m in _ASSIGN.finditer(line):
+            first = int(m.group(1))
+            last = int(m.group(2)) if m.group(2) else None
+            assignments.append((first, last, m.group(3), f"line {n}"))
+
+    if motor is None:
+        if "motor" in header:
+            try:
+                motor = int(header["motor"])
+            except ValueError:
+                raise ParameterError(
+                    f"the header's 'motor: {header['motor']}' is not a motor number."
+                ) from None
+        else:
+            found = _motors_in(assignments)
+            if len(found) != 1:
+                listed = ", ".join(map(str, found)) or "none"
+                raise ParameterError(
+                    f"the file sets registers of motors {listed}; pass motor= to choose one."
+                )
+            motor = found[0]
+    motor = _check_motor(chip, motor)
+
+    ours = _ours(motor)
+    space = parameter_space(chip)
+    values: dict[str, int] = {}
+    where_set: dict[str, str] = {}
+    for first, last, token, where in assignments:
+        for number in range(first, (last if last is not None else first) + 1):
+            field = ours.get(number)
+            if field is None:
+                continue
+            value = _parse_value(field, token, where)
+            try:
+                value = space[field].validate(value, context=f"I{number}")
+            except ParameterError as exc:
+                raise ParameterError(f"{where}: {exc}") from None
+            if field in values and values[field] != value:
+                raise ParameterError(
+                    f"{where}: I{number} ({field}) is set to {token} but {where_set[field]} "
+                    f"set it to another value; the controller would keep the last, so the "
+                    f"file is ambiguous. Remove one."
+                )
+            values[field] = value
+            where_set[field] = where
+    missing = [f for f in FIELDS if f not in values]
+    if missing:
+        listed = ", ".join(f"{ivar_name(f, motor)} ({f})" for f in missing)
+        raise ParameterError(
+            f"the I-variable file does not set every register of motor {motor}; an import "
+            f"takes no defaults. Missing: {listed}."
+        )
+    return PMACParams(model=chip.name, **values)
+
+
+# --------------------------------------------------------------------------------------
+# Dispatch
+# --------------------------------------------------------------------------------------
+
+
+def _check_format(fmt: Any) -> str:
+    if fmt in FORMATS:
+        return fmt
+    close = difflib.get_close_matches(str(fmt), FORMATS, n=1)
+    hint = f" Did you mean {close[0]!r}?" if close else ""
+    listed = ", ".join(f"{f!r} ({FILE_EXTENSIONS[f]})" for f in FORMATS)
+    raise ParameterError(f"fmt must be one of {listed}; got fmt={fmt!r}.{hint}")
+
+
+def export(params: PMACParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
+    """Export a parameter set in one of :data:`FORMATS`.
+
+    Args:
+        params: The parameter set; validated again first.
+        fmt: ``"json"`` (:func:`to_json`) or ``"ivar"`` (:func:`to_ivar`).
+        **kw: Passed on: ``assumptions`` to both formats; ``motor`` (or its other name
+            ``axis``, which every family's export takes) to ``"ivar"`` (a JSON file holds
+            one motor's set and ignores it); ``metrics``, ``notes``, ``created`` to JSON.
+
+    Returns:
+        The exported text; :data:`FILE_EXTENSIONS` suggests a file extension.
+
+    Raises:
+        ParameterError: for an unknown format (listing the formats) or an illegal set.
+    """
+    fmt = _check_format(fmt)
+    if fmt == "json":
+        kw.pop("axis", None)
+        kw.pop("motor", None)
+        return to_json(params, **kw)
+    if "axis" in kw:
+        axis = kw.pop("axis")
+        if "motor" in kw and kw["motor"] != axis:
+            raise ParameterError(
+                f"axis and motor name the same thing for PMAC; got axis={axis!r} and "
+                f"motor={kw['motor']!r}."
+            )
+        kw["motor"] = axis
+    return to_ivar(params, **kw)
+
+
+def import_params(
+    text: str,
+    fmt: str,
+    model: str | PMACChipModel | None = None,
+    motor: int | None = None,
+) -> PMACParams:
+    """Import a parameter set exported in one of :data:`FORMATS`.
+
+    Args:
+        text: The exported text.
+        fmt: ``"json"`` or ``"ivar"``.
+        model: Chip model; default the one the text names. If both are given they must
+            agree. Required for an I-variable file without a header.
+        motor: ``"ivar"`` only: the motor to read; default the header's, else the only one.
+
+    Returns:
+        The parameter set (for the provenance of a JSON file use :func:`from_json`).
+
+    Raises:
+        ParameterError: for an unknown format (listing the formats) or anything the
+            format's importer rejects.
+    """
+    fmt = _check_format(fmt)
+    if fmt == "json":
+        if motor is not None:
+            raise ParameterError("motor= applies to fmt='ivar' only; a JSON file has no motor.")
+        params = from_json(text).params
+        if model is not None and get_model(model).name != params.model:
+            raise ParameterError(
+                f"model={get_model(model).name!r} disagrees with the file's chip_model "
+                f"{params.model!r}; pass model={params.model!r} or model=None."
+            )
+        return params
+    return from_ivar(text, model, motor)
