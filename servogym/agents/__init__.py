@@ -1,1 +1,43 @@
-"""servogym.agents."""
+"""Agents: train SB3 policies on servogym envs and compare them with fixed-parameter baselines.
+
+Importing this package does not import torch; the training functions do.
+"""
+
+from servogym.agents._baselines import NOMINAL_SETS, nominal_set
+from servogym.agents._evaluate import (
+    ConstantPolicy,
+    EpisodeOutcome,
+    ModelPolicy,
+    baseline_policies,
+    paired_difference,
+    run_episodes,
+    summarize,
+)
+from servogym.agents._train import (
+    ALGOS,
+    DEFAULT_REWARD_SCALE,
+    ResidualAction,
+    load_model,
+    load_policy,
+    make_env,
+    train,
+)
+
+__all__ = [
+    "ALGOS",
+    "DEFAULT_REWARD_SCALE",
+    "NOMINAL_SETS",
+    "ConstantPolicy",
+    "EpisodeOutcome",
+    "ModelPolicy",
+    "ResidualAction",
+    "baseline_policies",
+    "load_model",
+    "load_policy",
+    "make_env",
+    "nominal_set",
+    "paired_difference",
+    "run_episodes",
+    "summarize",
+    "train",
+]

@@ -75,6 +75,8 @@ class ChipFamily(abc.ABC):
     models: Mapping[str, Any]
     params_type: type
     assumptions_type: type
+    env_name: str = ""
+    """The family's name in env ids (``Tune-<env_name>-...``); empty: the name in capitals."""
 
     @abc.abstractmethod
     def parameter_space(self, model: str) -> ParameterSpace:

@@ -1,1 +1,129 @@
-"""servogym.envs."""
+"""Gymnasium environments: tuning (one parameter set per axis) and gain scheduling.
+
+Every id is registered here, in one place, under the ``servogym/`` namespace, one per chip
+family and plant family in the registries (:func:`servogym.chips._family.families`,
+:data:`servogym.plants.PLANTS`)::
+
+    servogym/Tune-<Family>-<Plant>-v0       servogym/Schedule-<Family>-<Plant>-v0
+
+``<Family>`` is the chip family's ``env_name`` (or its name in capitals: ``PMD``), the env
+using the family's first model unless ``chip_model=`` names another
+(``gymnasium.make("servogym/Tune-PMD-VerticalAxis-v0", chip_model="MC58000")``);
+``<Plant>`` is the plant family in CamelCase (``VerticalAxis``). Importing this package
+registers them.
+
+Example:
+    >>> import gymnasium as gym
+    >>> import servogym.envs
+    >>> env = gym.make("servogym/Tune-PMD-VerticalAxis-v0")
+"""
+
+from __future__ import annotations
+
+import textwrap
+
+import gymnasium as gym
+
+from servogym.chips._family import ChipFamily, families
+from servogym.envs._actions import ACTION_TYPES, ActionMap, RawActions, UnitActions
+from servogym.envs._common import action_table, default_model
+from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP
+from servogym.envs._schedule import CYCLES, STATE_FEATURES, PickAndPlace, ScheduleEnv
+from servogym.envs._schedule import observation_table as _schedule_obs_table
+from servogym.envs._tune import IDENT_SCALE, TuneEnv
+from servogym.envs._tune import observation_table as _tune_obs_table
+from servogym.plants import PLANTS
+
+NAMESPACE = "servogym"
+VERSION = 0
+
+
+def family_id_name(family: ChipFamily) -> str:
+    """The chip family's part of an env id (``PMD``)."""
+    return getattr(family, "env_name", None) or family.name.upper()
+
+
+def plant_id_name(plant: str) -> str:
+    """The plant family's part of an env id (``vertical-axis`` -> ``VerticalAxis``)."""
+    return "".join(part.capitalize() for part in plant.replace("_", "-").split("-"))
+
+
+def env_id(kind: str, family: ChipFamily, plant: str) -> str:
+    """The registered id of an env kind (``"Tune"``, ``"Schedule"``) for a family and plant."""
+    return f"{NAMESPACE}/{kind}-{family_id_name(family)}-{plant_id_name(plant)}-v{VERSION}"
+
+
+ENTRY_POINTS = {
+    "Tune": "servogym.envs._tune:TuneEnv",
+    "Schedule": "servogym.envs._schedule:ScheduleEnv",
+}
+
+
+def register_envs() -> list[str]:
+    """Register every kind x chip family x plant family (idempotent); return the ids."""
+    ids = []
+    for family in families().values():
+        for plant in PLANTS:
+            for kind, entry_point in ENTRY_POINTS.items():
+                eid = env_id(kind, family, plant)
+                ids.append(eid)
+                if eid in gym.registry:
+                    continue
+                gym.register(
+                    id=eid,
+                    entry_point=entry_point,
+                    kwargs={
+                        "chip_model": default_model(family),
+                        "plant": plant,
+                        "family": family.name,
+                    },
+                    disable_env_checker=False,
+                )
+    return ids
+
+
+def registered_ids() -> list[str]:
+    """Every servogym id in Gymnasium's registry (what the tests iterate over)."""
+    return sorted(i for i in gym.registry if i.startswith(NAMESPACE + "/"))
+
+
+def _fill(doc: str, **tables: str) -> str:
+    for name, table in tables.items():
+        doc = doc.replace("{" + name + "}", textwrap.indent(table, "    ").lstrip())
+    return doc
+
+
+_PMD_DEFAULT = "MC2100"
+TuneEnv.__doc__ = _fill(
+    TuneEnv.__doc__, action_table=action_table(_PMD_DEFAULT), observation_table=_tune_obs_table()
+)
+ScheduleEnv.__doc__ = _fill(
+    ScheduleEnv.__doc__,
+    action_table=action_table(_PMD_DEFAULT),
+    observation_table=_schedule_obs_table(),
+)
+
+IDS = register_envs()
+"""Every id registered at import."""
+
+__all__ = [
+    "ACTION_TYPES",
+    "CYCLES",
+    "IDENT_SCALE",
+    "IDS",
+    "MOVE_FEATURES",
+    "NAMESPACE",
+    "OBS_CLIP",
+    "STATE_FEATURES",
+    "ActionMap",
+    "PickAndPlace",
+    "RawActions",
+    "ScheduleEnv",
+    "TuneEnv",
+    "UnitActions",
+    "env_id",
+    "family_id_name",
+    "plant_id_name",
+    "register_envs",
+    "registered_ids",
+]

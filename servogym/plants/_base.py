@@ -49,6 +49,9 @@ GRAVITY_MPS2 = 9.81
 """Gravitational acceleration of every plant, in m/s^2 (MuJoCo's default)."""
 
 
+_STATE_SIG = mujoco.mjtState.mjSTATE_INTEGRATION
+"""What ``Plant.set_params(keep_state=True)`` saves: everything integration needs."""
+
 class PlantParameterError(ValueError):
     """A plant parameter is unknown, of the wrong type, or outside its family's legal range."""
 
@@ -618,6 +621,7 @@ class Plant:
         self.model = model
         self.data = mujoco.MjData(model)
         self.io = family._axis_io(model, self.values)
+        self._state_buffer = np.zeros(mujoco.mj_stateSize(model, _STATE_SIG))
         self.reset()
 
     def __repr__(self) -> str:
@@ -628,8 +632,10 @@ class Plant:
         """The physics timestep, in seconds."""
         return float(self.model.opt.timestep)
 
-    def set_params(self, values: Mapping[str, Any] | None = None, **kw: Any) -> None:
-        """Change the plant instance in place, then reset it.
+    def set_params(
+        self, values: Mapping[str, Any] | None = None, *, keep_state: bool = False, **kw: Any
+    ) -> None:
+        """Change the plant instance in place, then reset it (or keep its state).
 
         Parameters not given keep their current values. The compiled model's arrays (masses,
         inertias, damping, friction, stiffness, ranges, gear, ...) are overwritten, then
@@ -639,6 +645,9 @@ class Plant:
 
         Args:
             values: Parameters to change, each in its unit.
+            keep_state: Instead of resetting, put the full integration state (position,
+                velocity, actuator state, controls, the solver's warm start, time) back as it
+                was: a payload picked up at rest, in the middle of a sequence of moves.
             **kw: More parameters to change, by name (``payload_kg=3.0``).
 
         Raises:
@@ -649,6 +658,8 @@ class Plant:
         updates.update(kw)
         full = self.family.validate({**self.values, **updates})
         numbers_ = self.family._numbers(full)
+        if keep_state:
+            mujoco.mj_getState(self.model, self.data, self._state_buffer, _STATE_SIG)
         _write_spec(self.spec, numbers_)
         _write_model(self.model, numbers_)
         mujoco.mj_setConst(self.model, self.data)
@@ -656,6 +667,9 @@ class Plant:
         self.values = full
         self.io = self.family._axis_io(self.model, full)
         self.reset()
+        if keep_state:
+            mujoco.mj_setState(self.model, self.data, self._state_buffer, _STATE_SIG)
+            mujoco.mj_forward(self.model, self.data)
 
     def set_timestep(self, dt_s: float) -> None:
         """Set the physics timestep (the runner uses the chip's servo period / substeps).

@@ -133,3 +133,23 @@ def test_inertia_scales_with_mass():
     inertia = plant.model.body_inertia[i].copy()
     plant.set_params(payload_kg=2 * family.nominal()["payload_kg"])
     np.testing.assert_allclose(plant.model.body_inertia[i], 2 * inertia, rtol=1e-15)
+
+
+def test_keep_state_changes_the_instance_without_moving_the_axis():
+    # A payload picked up at rest mid-sequence: state carries over, dynamics change.
+    from servogym.plants import get_plant
+
+    plant = get_plant("vertical-axis").build()
+    d = plant.data
+    for _ in range(50):
+        d.ctrl[plant.io.ctrl_index] = 0.3
+        mujoco.mj_step(plant.model, d)
+    qpos, qvel, time = d.qpos.copy(), d.qvel.copy(), d.time
+    mass_before = plant.model.body_subtreemass.copy()
+    plant.set_params(payload_kg=8.0, keep_state=True)
+    np.testing.assert_array_equal(d.qpos, qpos)
+    np.testing.assert_array_equal(d.qvel, qvel)
+    assert d.time == time
+    assert not np.array_equal(plant.model.body_subtreemass, mass_before)
+    plant.set_params(payload_kg=8.0)
+    assert d.time == 0.0 and np.all(d.qvel == 0)

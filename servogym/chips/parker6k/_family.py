@@ -28,6 +28,7 @@ class Parker6kFamily(ChipFamily):
     models = CHIP_MODELS
     params_type = Parker6kParams
     assumptions_type = Parker6kAssumptions
+    env_name = "Parker6K"
     formats = _export.FORMATS
     file_extensions = _export.FILE_EXTENSIONS
 

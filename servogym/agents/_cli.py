@@ -1,0 +1,156 @@
+"""``servogym train`` and ``servogym evaluate`` (registered on the app in servogym/cli.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+console = Console()
+
+
+def _fail(message: str) -> None:
+    console.print(f"[red]error:[/red] {message}", highlight=False)
+    raise typer.Exit(code=2)
+
+
+def _json_option(text: str | None, name: str) -> dict[str, Any]:
+    if not text:
+        return {}
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as e:
+        _fail(f"{name} must be a JSON object, e.g. '{{\"n_moves\": 8}}'; got {text!r} ({e}).")
+    if not isinstance(value, dict):
+        _fail(f"{name} must be a JSON object; got {text!r}.")
+    return value
+
+
+def _check_env_id(env: str) -> None:
+    import difflib
+
+    from servogym.envs import registered_ids
+
+    ids = registered_ids()
+    if env not in ids:
+        close = difflib.get_close_matches(env, ids, n=3)
+        hint = f" Did you mean {', '.join(close)}?" if close else ""
+        _fail(f"unknown env id {env!r}; the servogym ids are {', '.join(ids)}.{hint}")
+
+
+def train_command(
+    env: Annotated[str, typer.Option(help="Env id, e.g. servogym/Tune-PMD-VerticalAxis-v0.")],
+    algo: Annotated[str, typer.Option(help="ppo, sac or td3.")] = "ppo",
+    timesteps: Annotated[int, typer.Option(min=1, help="Env steps to train for.")] = 100_000,
+    seed: Annotated[int, typer.Option(help="Seed of the agent and the envs.")] = 0,
+    out: Annotated[Path, typer.Option(help="Run directory (model, checkpoints, logs).")] = Path(
+        "runs/run"
+    ),
+    n_envs: Annotated[int, typer.Option(min=1, help="Envs stepped in parallel.")] = 2,
+    env_kwargs: Annotated[
+        str | None,
+        typer.Option(help="gymnasium.make keyword arguments as JSON, e.g. '{\"n_moves\": 8}'."),
+    ] = None,
+    algo_kwargs: Annotated[
+        str | None, typer.Option(help="SB3 algorithm keyword arguments as JSON.")
+    ] = None,
+    minutes: Annotated[
+        float | None, typer.Option(help="Stop after this much wall time (minutes).")
+    ] = None,
+    checkpoint_every: Annotated[int, typer.Option(min=1, help="Checkpoint interval (steps).")] = (
+        10_000
+    ),
+) -> None:
+    """Train an SB3 agent on a servogym env, with a progress bar, checkpoints and TensorBoard."""
+    from servogym.agents._train import ALGOS, train
+
+    if algo.lower() not in ALGOS:
+        _fail(f"--algo must be one of {', '.join(ALGOS)}; got --algo {algo!r}.")
+    _check_env_id(env)
+    path = train(
+        env,
+        algo,
+        timesteps,
+        seed,
+        out,
+        n_envs=n_envs,
+        env_kwargs=_json_option(env_kwargs, "--env-kwargs"),
+        algo_kwargs=_json_option(algo_kwargs, "--algo-kwargs"),
+        wall_time_s=None if minutes is None else minutes * 60.0,
+        checkpoint_every=checkpoint_every,
+    )
+    console.print(f"saved {path}")
+
+
+def evaluate_command(
+    env: Annotated[
+        str | None, typer.Option(help="Env id; default: the one in the model's config.json.")
+    ] = None,
+    model: Annotated[
+        Path | None, typer.Option(help="A saved model (model.zip); omit for baselines only.")
+    ] = None,
+    episodes: Annotated[int, typer.Option(min=1, help="Seeded episodes per policy.")] = 100,
+    seed: Annotated[int, typer.Option(help="First seed; episodes use seed .. seed+n-1.")] = (
+        100_000
+    ),
+    env_kwargs: Annotated[
+        str | None, typer.Option(help="gymnasium.make keyword arguments as JSON.")
+    ] = None,
+    fixed: Annotated[
+        Path | None,
+        typer.Option(help="JSON file of register values: a 'best fixed set' baseline."),
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,
+) -> None:
+    """Run a saved policy and the baselines on the same seeded episodes; print a table."""
+    import gymnasium as gym
+
+    import servogym.envs  # noqa: F401
+    from servogym.agents._evaluate import (
+        baseline_policies,
+        run_episodes,
+        summarize,
+    )
+
+    kwargs: dict[str, Any] = {}
+    if model is not None:
+        if not model.exists():
+            _fail(f"--model {str(model)!r} does not exist.")
+        cfg = model.parent / "config.json"
+        if cfg.exists():
+            config = json.loads(cfg.read_text())
+            env = env or config["env_id"]
+            kwargs.update(config.get("env_kwargs", {}))
+    if env is None:
+        _fail("give --env, or a --model whose run directory has a config.json")
+    _check_env_id(env)
+    kwargs.update(_json_option(env_kwargs, "--env-kwargs"))
+    extra = {}
+    if fixed is not None:
+        extra["best fixed set"] = json.loads(fixed.read_text())
+    e = gym.make(env, **kwargs)
+    policies: dict[str, Any] = {}
+    if model is not None:
+        from servogym.agents._train import load_policy
+
+        policies["policy"] = load_policy(model)
+    policies.update(baseline_policies(e, extra))
+    seeds = range(seed, seed + episodes)
+    results = {name: summarize(run_episodes(e, p, seeds)) for name, p in policies.items()}
+    if as_json:
+        typer.echo(json.dumps({"env": env, "seeds": [seed, seed + episodes - 1], **results}))
+        return
+    table = Table(title=f"{env}: {episodes} episodes, seeds {seed}..{seed + episodes - 1}")
+    for col in ("policy", "mean return", "± s.e.", "median", "worst", "diverged", "step cost"):
+        table.add_column(col)
+    for name, s in results.items():
+        table.add_row(
+            name, f"{s['mean_return']:.2f}", f"{s['sem_return']:.2f}",
+            f"{s['median_return']:.2f}", f"{s['worst_return']:.2f}", str(s["n_diverged"]),
+            f"{s['mean_step_cost']:.2f}",
+        )  # fmt: skip
+    console.print(table)

@@ -1,0 +1,121 @@
+"""Running policies and baselines on the same seeded episodes."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+Policy = Callable[[np.ndarray], Any]
+"""A policy: observation in, action out."""
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeOutcome:
+    """One episode of a policy.
+
+    Attributes:
+        seed: The seed given to ``reset``.
+        episode_return: Sum of the rewards (minus the summed costs).
+        n_steps: Steps taken.
+        diverged: Whether a step diverged.
+        mean_cost: Mean per-step cost (``info["cost"]``).
+    """
+
+    seed: int
+    episode_return: float
+    n_steps: int
+    diverged: bool
+    mean_cost: float
+
+
+class ConstantPolicy:
+    """The same action every step (a fixed parameter set)."""
+
+    def __init__(self, action: Any) -> None:
+        self.action = np.asarray(action)
+
+    def __call__(self, obs: np.ndarray) -> Any:
+        return self.action.copy()
+
+
+class ModelPolicy:
+    """An SB3 model's deterministic action (mapped from residual form when trained so)."""
+
+    def __init__(self, model: Any, residual: Mapping[str, Any] | None = None) -> None:
+        self.model = model
+        self.residual = residual
+
+    def __call__(self, obs: np.ndarray) -> Any:
+        action, _ = self.model.predict(obs, deterministic=True)
+        if self.residual is not None:
+            from servogym.agents._train import residual_to_absolute
+
+            action = residual_to_absolute(action, self.residual)
+        return action
+
+
+def run_episodes(env: Any, policy: Policy, seeds: Iterable[int]) -> list[EpisodeOutcome]:
+    """Run one episode per seed (``env.reset(seed=s)``) and collect the outcomes."""
+    out = []
+    for seed in seeds:
+        obs, _ = env.reset(seed=int(seed))
+        total, n, diverged, costs = 0.0, 0, False, []
+        done = False
+        while not done:
+            obs, reward, terminated, truncated, info = env.step(policy(obs))
+            total += float(reward)
+            n += 1
+            diverged |= bool(info.get("diverged", False))
+            costs.append(float(info.get("cost", -reward)))
+            done = terminated or truncated
+        out.append(EpisodeOutcome(int(seed), total, n, diverged, float(np.mean(costs))))
+    return out
+
+
+def summarize(outcomes: list[EpisodeOutcome]) -> dict[str, float]:
+    """Mean, standard error, median and worst return, divergence count, mean step cost."""
+    r = np.array([o.episode_return for o in outcomes])
+    return {
+        "n_episodes": len(outcomes),
+        "mean_return": float(r.mean()),
+        "sem_return": float(r.std(ddof=1) / np.sqrt(len(r))) if len(r) > 1 else 0.0,
+        "median_return": float(np.median(r)),
+        "worst_return": float(r.min()),
+        "n_diverged": int(sum(o.diverged for o in outcomes)),
+        "mean_step_cost": float(np.mean([o.mean_cost for o in outcomes])),
+    }
+
+
+def paired_difference(a: list[EpisodeOutcome], b: list[EpisodeOutcome]) -> dict[str, float]:
+    """Return of ``a`` minus that of ``b`` on the same seeds: mean, standard error, wins."""
+    if [o.seed for o in a] != [o.seed for o in b]:
+        raise ValueError("paired_difference needs outcomes on the same seeds, in order")
+    d = np.array([x.episode_return - y.episode_return for x, y in zip(a, b, strict=True)])
+    return {
+        "mean": float(d.mean()),
+        "sem": float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0,
+        "a_better": int((d > 0).sum()),
+        "b_better": int((d < 0).sum()),
+    }
+
+
+def baseline_policies(
+    env: Any, extra: Mapping[str, Mapping[str, int]] | None = None
+) -> dict[str, ConstantPolicy]:
+    """Constant-parameter baselines for an env: the chip's defaults, the hand-tuned nominal
+    set of the chip family and plant (when :data:`~servogym.agents.NOMINAL_SETS` has one),
+    and any ``extra`` named register sets (e.g. the tuner's best fixed set)."""
+    from servogym.agents._baselines import nominal_set
+
+    u = env.unwrapped
+    actions = u.actions
+    out = {"chip defaults": ConstantPolicy(actions.from_values({}))}
+    nominal = nominal_set(u.chip.name, u.scenario.plant)
+    if nominal is not None:
+        out["hand-tuned nominal"] = ConstantPolicy(actions.from_values(nominal))
+    for name, values in (extra or {}).items():
+        out[name] = ConstantPolicy(actions.from_values(values))
+    return out

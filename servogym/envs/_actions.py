@@ -1,0 +1,224 @@
+"""How an env's action becomes a chip parameter set: pluggable action maps.
+
+An action map owns the action space and turns an action into a validated parameter set of
+the chip. Envs take any object with this interface (:class:`ActionMap`), so a chip family
+can add its own kind of action (for example a discrete choice among stored gain sets)
+without touching the envs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, Protocol
+
+import numpy as np
+from gymnasium import spaces
+
+from servogym.chips._family import ChipFamily
+from servogym.chips._space import ParameterError, ParamSpec
+
+
+class ActionMap(Protocol):
+    """What an env needs from an action map.
+
+    Attributes:
+        space: The Gymnasium action space.
+        names: Names of the registers the action sets, in action order.
+    """
+
+    space: spaces.Space
+    names: tuple[str, ...]
+
+    def to_values(self, action: Any) -> dict[str, int]:
+        """The complete register values (fixed ones included) an action stands for."""
+
+    def to_params(self, action: Any) -> Any:
+        """The chip parameter set an action stands for; raises ValueError for a bad action."""
+
+    def from_values(self, values: Mapping[str, int]) -> Any:
+        """An action that gives ``values`` (as closely as the map can); for baselines."""
+
+
+def _resolve(
+    family: ChipFamily, chip_model: str, params: tuple[str, ...] | None, fixed: Mapping[str, Any]
+) -> tuple[tuple[ParamSpec, ...], dict[str, int]]:
+    space = family.parameter_space(chip_model)
+    fixed_values = space.validate(dict(fixed))
+    if params is None:
+        names = [s.name for s in space.tunable() if s.name not in fixed_values]
+    else:
+        names = list(params)
+        for name in names:
+            space[name]  # unknown names raise with close matches
+            if name in fixed_values:
+                raise ValueError(
+                    f"a parameter is either set by the action or fixed, not both; "
+                    f"got {name!r} in params and in fixed={dict(fixed)!r}."
+                )
+    if not names:
+        raise ValueError(
+            f"the action must set at least one parameter; every tunable parameter of "
+            f"{chip_model} is fixed ({', '.join(fixed_values)})."
+        )
+    return tuple(space[n] for n in names), fixed_values
+
+
+class UnitActions:
+    """A Box in [-1, 1], one entry per register, mapped by :meth:`ParamSpec.from_unit`.
+
+    Log-scaled registers map log-uniformly (0 stays reachable where it is legal), linear ones
+    evenly. Registers not in the action keep the chip's default or the value in ``fixed``.
+
+    Args:
+        family: The chip family.
+        chip_model: The chip model.
+        params: Registers the action sets, in order; ``None``: every tunable register of the
+            model that is not fixed.
+        fixed: Registers held at a given value for the whole env.
+    """
+
+    def __init__(
+        self,
+        family: ChipFamily,
+        chip_model: str,
+        params: tuple[str, ...] | None = None,
+        fixed: Mapping[str, Any] | None = None,
+    ) -> None:
+        self.family, self.chip_model = family, chip_model
+        self.specs, self.fixed = _resolve(family, chip_model, params, fixed or {})
+        self.names = tuple(s.name for s in self.specs)
+        self.space = spaces.Box(-1.0, 1.0, shape=(len(self.specs),), dtype=np.float32)
+
+    def _array(self, action: Any) -> np.ndarray:
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"the action must be an array of {len(self.names)} numbers in [-1, 1] "
+                f"({', '.join(self.names)}); got {action!r}."
+            ) from None
+        if a.shape != self.space.shape:
+            raise ValueError(
+                f"the action must have shape {self.space.shape} (one entry per parameter: "
+                f"{', '.join(self.names)}); got shape {a.shape}."
+            )
+        return a
+
+    def to_values(self, action: Any) -> dict[str, int]:
+        """Register values of ``action``: the fixed ones, then one per action entry.
+
+        Raises:
+            ValueError: for a wrong shape, or an entry that is NaN, infinite or outside
+                [-1, 1]; the message names the index, the parameter and the value.
+        """
+        a = self._array(action)
+        values = dict(self.fixed)
+        for i, (spec, u) in enumerate(zip(self.specs, a, strict=True)):
+            if not (math.isfinite(u) and -1.0 <= u <= 1.0):
+                raise ValueError(
+                    f"action[{i}] ({spec.name}) must be a finite number in [-1, 1]; "
+                    f"got action[{i}]={u!r}."
+                )
+            values[spec.name] = spec.from_unit(float(u))
+        return values
+
+    def to_params(self, action: Any) -> Any:
+        """The chip parameter set of ``action`` (see :meth:`to_values`)."""
+        return _make(self.family, self.chip_model, self.to_values(action))
+
+    def from_values(self, values: Mapping[str, int]) -> np.ndarray:
+        """The action closest to ``values`` (registers missing take the chip default)."""
+        space = self.family.parameter_space(self.chip_model)
+        return np.array(
+            [s.to_unit(int(values.get(s.name, space[s.name].default))) for s in self.specs],
+            dtype=np.float32,
+        )
+
+
+class RawActions:
+    """The registers' own integers: ``MultiDiscrete``, entry ``i`` meaning ``low_i + a[i]``.
+
+    For agents that want the legal integers themselves. Arguments as :class:`UnitActions`.
+    """
+
+    def __init__(
+        self,
+        family: ChipFamily,
+        chip_model: str,
+        params: tuple[str, ...] | None = None,
+        fixed: Mapping[str, Any] | None = None,
+    ) -> None:
+        self.family, self.chip_model = family, chip_model
+        self.specs, self.fixed = _resolve(family, chip_model, params, fixed or {})
+        self.names = tuple(s.name for s in self.specs)
+        self.lows = np.array([s.low for s in self.specs], dtype=np.int64)
+        self.space = spaces.MultiDiscrete(
+            np.array([s.high - s.low + 1 for s in self.specs], dtype=np.int64)
+        )
+
+    def to_values(self, action: Any) -> dict[str, int]:
+        """Register values of ``action`` (``low + action[i]`` for entry ``i``).
+
+        Raises:
+            ValueError: for a wrong shape, a non-integer entry or one outside its range.
+        """
+        a = np.asarray(action)
+        if a.shape != self.space.shape or not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(
+                f"the action must be an integer array of shape {self.space.shape} "
+                f"({', '.join(self.names)}); got {a.dtype} of shape {a.shape}."
+            )
+        values = dict(self.fixed)
+        for i, spec in enumerate(self.specs):
+            n = int(self.space.nvec[i])
+            if not 0 <= int(a[i]) < n:
+                raise ValueError(
+                    f"action[{i}] ({spec.name}) must satisfy 0 <= action[{i}] <= {n - 1} "
+                    f"(meaning {spec.range_text}); got action[{i}]={int(a[i])}."
+                )
+            values[spec.name] = spec.low + int(a[i])
+        return values
+
+    def to_params(self, action: Any) -> Any:
+        """The chip parameter set of ``action``."""
+        return _make(self.family, self.chip_model, self.to_values(action))
+
+    def from_values(self, values: Mapping[str, int]) -> np.ndarray:
+        """The action giving ``values`` (registers missing take the chip default)."""
+        space = self.family.parameter_space(self.chip_model)
+        return np.array(
+            [int(values.get(s.name, space[s.name].default)) - s.low for s in self.specs],
+            dtype=np.int64,
+        )
+
+
+ACTION_TYPES = {"unit": UnitActions, "raw": RawActions}
+"""Built-in action maps by name: ``"unit"`` (Box in [-1, 1]) and ``"raw"`` (MultiDiscrete)."""
+
+
+def make_action_map(
+    action_type: str | Any,
+    family: ChipFamily,
+    chip_model: str,
+    params: tuple[str, ...] | None,
+    fixed: Mapping[str, Any] | None,
+) -> Any:
+    """An action map by name, or ``action_type`` itself when it is already one."""
+    if not isinstance(action_type, str):
+        return action_type
+    try:
+        cls = ACTION_TYPES[action_type]
+    except KeyError:
+        raise ValueError(
+            f"action_type must be one of {', '.join(map(repr, ACTION_TYPES))} or an action "
+            f"map object; got action_type={action_type!r}."
+        ) from None
+    return cls(family, chip_model, params, fixed)
+
+
+def _make(family: ChipFamily, chip_model: str, values: Mapping[str, int]) -> Any:
+    try:
+        return family.make_params(chip_model, values)
+    except ParameterError as e:  # a combination the chip model rejects
+        raise ValueError(f"the action gives an illegal parameter set: {e}") from e

@@ -1,0 +1,95 @@
+"""What both env families share: scenario set-up, plant draws, tables for docstrings."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from servogym.chips._family import ChipFamily, get_chip
+from servogym.plants import get_plant
+from servogym.sim import Scenario
+
+
+def default_model(family: ChipFamily) -> str:
+    """The chip model an env id of ``family`` uses unless ``chip_model=`` says otherwise."""
+    return next(iter(family.models))
+
+
+def make_scenario(
+    chip_model: str | None,
+    plant: str,
+    scenario: Scenario | None,
+    plant_values: Mapping[str, float] | None,
+    sample_scale: float,
+    family: str | None = None,
+) -> Scenario:
+    """The env's scenario: ``scenario`` itself, or one built from the other arguments."""
+    if scenario is not None:
+        if not isinstance(scenario, Scenario):
+            raise TypeError(
+                f"scenario must be a servogym.sim.Scenario; got {type(scenario).__name__}."
+            )
+        return scenario
+    if chip_model is None:
+        raise ValueError("give chip_model (e.g. 'MC2100') or a scenario")
+    chip, model = get_chip(chip_model)
+    if family is not None and chip.name != family:
+        raise ValueError(
+            f"chip_model must be a model of the {family!r} family for this env id; got "
+            f"chip_model={chip_model!r} of family {chip.name!r} (its models: "
+            f"{', '.join(get_chip_family_models(family))})."
+        )
+    get_plant(plant)
+    return Scenario(
+        model, plant, dict(plant_values or {}), randomise=True, sample_scale=sample_scale
+    )
+
+
+def get_chip_family_models(family: str) -> list[str]:
+    from servogym.chips._family import families
+
+    return list(families()[family].models)
+
+
+def options_plant_values(
+    scenario: Scenario, options: Mapping[str, Any] | None, rng: np.random.Generator
+) -> dict[str, float]:
+    """A plant instance: ``options["plant_values"]`` over the scenario's fixed values and
+    nominal ones when given, else a draw from the scenario's distribution."""
+    options = options or {}
+    unknown = set(options) - {"plant_values"}
+    if unknown:
+        raise ValueError(f"reset options may only contain 'plant_values'; got {sorted(unknown)}.")
+    if "plant_values" in options:
+        family = get_plant(scenario.plant)
+        return family.validate({**scenario.plant_values, **dict(options["plant_values"])})
+    return scenario.draw_plant(rng)
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A Markdown table (used in env docstrings and docs/envs.md)."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def action_table(chip_model: str) -> str:
+    """The action table of an env over ``chip_model`` (tunable registers), from the code."""
+    chip, model = get_chip(chip_model)
+    space = chip.parameter_space(model)
+    rows = [
+        (
+            i,
+            f"`{s.name}`",
+            "log" if s.log else "linear",
+            f"{s.low} .. {s.high}",
+            s.default,
+            f"int ({s.unit or '1'})",
+        )
+        for i, s in enumerate(space.tunable())
+    ]
+    return markdown_table(
+        ("Num", "Parameter", "Scale", "Legal range", "Default", "Type (Unit)"), rows
+    )

@@ -1,0 +1,323 @@
+"""The gain-scheduling env: a parameter set per move while the operating point changes."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from servogym.envs._actions import make_action_map
+from servogym.envs._common import (
+    make_scenario,
+    markdown_table,
+    options_plant_values,
+)
+from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP, clip, move_features
+from servogym.plants import get_plant
+from servogym.sim import DIVERGENCE_PENALTY, Scenario, ServoLoop, move_cost
+
+
+@dataclasses.dataclass(frozen=True)
+class PickAndPlace:
+    """The operating-point change of a scheduling episode: a pick-and-place cycle.
+
+    The axis starts empty at 0, moves to a pick position below (or before) 0, picks a part
+    up, carries it to a place position above 0, puts it down, and goes back for the next.
+    Even moves (0, 2, ...) run empty towards a pick position, odd moves carry the part. One
+    part value is drawn per episode, log-uniformly over ``part``.
+
+    Attributes:
+        param: The plant parameter the part changes (``payload_kg``, ``load_inertia_kgm2``).
+        empty: Its value without a part; ``None``: the parameter's legal low.
+        part: Range of its value with the part; ``None``: the parameter's legal range.
+        reach: Pick and place positions are drawn uniformly at ``reach[0] .. reach[1]``
+            times the scenario's first move distance from 0, below and above it.
+    """
+
+    param: str
+    empty: float | None = None
+    part: tuple[float, float] | None = None
+    reach: tuple[float, float] = (0.2, 1.2)
+
+
+CYCLES: dict[str, PickAndPlace] = {
+    "vertical-axis": PickAndPlace("payload_kg"),  # gravity and inertia change several-fold
+    "arm": PickAndPlace("payload_kg"),  # plus angle-dependent gravity along the moves
+    "rotary": PickAndPlace("load_inertia_kgm2"),  # inertia changes (a part on the table)
+    "two-mass": PickAndPlace("load_inertia_kgm2"),  # inertia and resonance change
+}
+"""The pick-and-place cycle of each plant family; a family not listed changes its first
+randomised parameter over its legal range."""
+
+STATE_FEATURES: tuple[tuple[str, str, str], ...] = (
+    ("next_distance", "float (1)", "coming move's distance / the scenario's first move distance"),
+    ("position", "float (1)", "commanded position / the scenario's first move distance"),
+    ("next_duration", "float (s)", "coming move's duration including settle time"),
+    ("progress", "float (1)", "moves done / moves per episode"),
+)
+"""Features of the controller's state after the last-move features and before the last
+action: name, type (unit), meaning."""
+
+
+def cycle_for(plant: str) -> PickAndPlace:
+    """The pick-and-place cycle of a plant family (:data:`CYCLES`, or its fallback)."""
+    if plant in CYCLES:
+        return CYCLES[plant]
+    return PickAndPlace(get_plant(plant).randomised()[0])
+
+
+class ScheduleEnv(gym.Env):
+    """Choose the parameter set of every move while the load changes: gain scheduling.
+
+    ## Description
+
+    An episode is a pick-and-place sequence of ``n_moves`` moves on one plant instance
+    (:class:`PickAndPlace`): empty moves to a pick position alternate with loaded moves to a
+    place position, so the payload (vertical axis, arm) or load inertia (rotary, two-mass)
+    changes several-fold between moves, and on the arm gravity also changes with the angle.
+    Before each move the agent chooses the parameter set applied for that move; it is loaded
+    the way the chip applies an Update (``ServoLoop.set_params``: the filter state, the
+    integrator included, carries over), and plant, amplifier and encoder carry over too.
+
+    ## Action Space
+
+    As :class:`~servogym.envs.TuneEnv`: ``Box(-1, 1, (n,), float32)`` over the tuned
+    registers (``params=``, ``fixed=``), or ``action_type="raw"`` (``MultiDiscrete``), or
+    any action-map object with ``space``, ``names``, ``to_values``, ``to_params`` and
+    ``from_values`` (``servogym.envs.ActionMap``; e.g. a discrete choice among a chip's
+    stored gain sets). Default registers of the PMD family (MC2100):
+
+    {action_table}
+
+    A NaN, an infinity, an entry outside [-1, 1] or a wrong shape raises ``ValueError``
+    naming the index and the register; nothing is run.
+
+    ## Observation Space
+
+    ``Box(-10, 10, (12 + 4 + n,), float64)``, everything the controller can know, clipped to
+    [-10, 10]: the last move's response (zeros before the first move), the state, and the
+    last action in unit form (``to_unit`` of the registers applied; zeros before the first).
+
+    {observation_table}
+
+    ## Rewards
+
+    Minus the move's cost (``servogym.sim.move_cost``, 0 .. 100, docs/cost.md). A move that
+    diverges ends the episode with reward ``-1000 * (2 - r)``, ``r`` the fraction of the
+    episode's moves that ran (the diverging one counted by the fraction of its ticks).
+
+    ## Starting State
+
+    A plant instance drawn with ``np_random`` (the scenario's distribution, the cycle's
+    parameter set to its empty value), the part value and the ``n_moves`` pick and place
+    positions drawn with it; the axis at rest at 0, the chip's filter state zero.
+
+    ## Episode End
+
+    Terminated after ``n_moves`` moves, or when a move diverges. Never truncated.
+
+    ## Arguments
+
+    | Argument | Default | Type (Unit) | Meaning |
+    |---|---|---|---|
+    | `chip_model` | family's first model | str | chip model (any model of the id's family) |
+    | `plant` | from the id | str | plant family |
+    | `scenario` | `None` | Scenario | overrides chip_model, plant, plant_values, scale |
+    | `plant_values` | `{}` | dict (SI) | plant parameters held fixed |
+    | `sample_scale` | 1.0 | float (1) | width of the plant distribution (0 = nominal) |
+    | `n_moves` | 8 | int (moves) | moves per episode (even: whole cycles) |
+    | `cycle` | `CYCLES[plant]` | PickAndPlace | what changes between moves |
+    | `params` | tunable registers | tuple[str] | registers the action sets |
+    | `fixed` | `{}` | dict (int) | registers held at a value |
+    | `action_type` | `"unit"` | str or action map | `"unit"`, `"raw"` or an object |
+    | `render_mode` | `None` | str | `"rgb_array"`: picture of the last move |
+
+    ## Version History
+
+    * v0: Initial version.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(
+        self,
+        chip_model: str | None = None,
+        plant: str = "vertical-axis",
+        *,
+        scenario: Scenario | None = None,
+        plant_values: Mapping[str, float] | None = None,
+        sample_scale: float = 1.0,
+        n_moves: int = 8,
+        cycle: PickAndPlace | None = None,
+        params: tuple[str, ...] | None = None,
+        fixed: Mapping[str, Any] | None = None,
+        action_type: str | Any = "unit",
+        render_mode: str | None = None,
+        family: str | None = None,
+    ) -> None:
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}; "
+                f"got render_mode={render_mode!r}."
+            )
+        if isinstance(n_moves, bool) or not isinstance(n_moves, int) or n_moves < 1:
+            raise ValueError(f"n_moves must be an integer >= 1; got n_moves={n_moves!r}.")
+        self.render_mode = render_mode
+        self.n_moves = n_moves
+        self.scenario = make_scenario(
+            chip_model, plant, scenario, plant_values, sample_scale, family
+        )
+        self.chip = self.scenario.chip
+        self.plant_family = get_plant(self.scenario.plant)
+        self.cycle = cycle if cycle is not None else cycle_for(self.scenario.plant)
+        p = self.plant_family.param(self.cycle.param)
+        self._empty = p.low if self.cycle.empty is None else p.validate(self.cycle.empty)
+        part = self.cycle.part if self.cycle.part is not None else (p.low, p.high)
+        self._part = (p.validate(part[0]), p.validate(part[1]))
+        self.defaults = self.scenario.default_params()
+        self.plant = self.plant_family.build(self.scenario.draw_plant(np.random.default_rng(0)))
+        self.loop = ServoLoop(
+            self.plant, self.defaults, self.scenario.assumptions, substeps=self.scenario.substeps
+        )
+        self.actions = make_action_map(
+            action_type, self.chip, self.scenario.chip_model, params, fixed
+        )
+        self.action_space = self.actions.space
+        self._space = self.chip.parameter_space(self.scenario.chip_model)
+        self._n_move = len(MOVE_FEATURES)
+        n = self._n_move + len(STATE_FEATURES) + len(self.actions.names)
+        self.observation_space = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(n,), dtype=np.float64)
+        self._spec = self.scenario.moves[0]
+        self._d_ref = abs(self._spec.distance)
+        self._targets = np.zeros(n_moves)
+        self._k = n_moves
+        self._last: tuple[str, Any] | None = None
+        self.part_value = self._empty
+
+    # -- the episode's plan ---------------------------------------------------------------
+
+    def _profile(self, k: int, params: Any) -> Any:
+        io = self.plant.io
+        start = 0.0 if k == 0 else self._targets[k - 1]
+        start_counts = round(start * io.counts_per_unit)
+        spec = dataclasses.replace(self._spec, distance=self._targets[k] - start)
+        move = spec.to_move(io.counts_per_unit, start_counts)
+        return self.chip.profile(move, self.chip.sample_time_s(params))
+
+    def _observation(self, features: np.ndarray, values: Mapping[str, int] | None) -> np.ndarray:
+        k = self._k
+        if k < self.n_moves:
+            prev = 0.0 if k == 0 else self._targets[k - 1]
+            nxt = self._targets[k] - prev
+            v, a = self._spec.max_velocity, self._spec.max_acceleration
+            duration = _trapezoid_time(abs(nxt), v, a) + self._spec.settle_s
+        else:
+            prev, nxt, duration = self._targets[-1], 0.0, 0.0
+        state = [nxt / self._d_ref, prev / self._d_ref, duration, k / self.n_moves]
+        if values is None:
+            last = np.zeros(len(self.actions.names))
+        else:
+            last = [self._space[n].to_unit(values[n]) for n in self.actions.names]
+        return clip(np.concatenate([features, state, last]))
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        rng = self.np_random
+        values = options_plant_values(self.scenario, options, rng)
+        lo, hi = self._part
+        self.part_value = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+        r0, r1 = self.cycle.reach
+        reach = rng.uniform(r0, r1, size=self.n_moves) * self._d_ref
+        sign = math.copysign(1.0, self._spec.distance)
+        # even moves go to a pick position (below 0), odd ones to a place position (above)
+        self._targets = np.where(np.arange(self.n_moves) % 2 == 0, -reach, reach) * sign
+        values[self.cycle.param] = self._empty
+        self.plant.set_params(values)
+        self.plant_values = dict(self.plant.values)
+        self.loop.set_params(self.defaults)
+        self._k = 0
+        self._last = None
+        obs = self._observation(np.zeros(self._n_move), None)
+        return obs, self._info()
+
+    def _info(self) -> dict[str, Any]:
+        return {
+            "move": self._k,
+            self.cycle.param: float(self.plant.values[self.cycle.param]),
+            "part_value": self.part_value,
+        }
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._k >= self.n_moves:
+            raise RuntimeError("the episode has ended; call reset() before step()")
+        values = self.actions.to_values(action)
+        params = self.actions.to_params(action)
+        k = self._k
+        profile = self._profile(k, params)
+        self.loop.set_params(params)  # the chip's Update: filter state carries over
+        r = self.loop.run(profile, traces=True, reset=k == 0)
+        self._last = (f"move {k}", r)
+        distance = int(profile.position[-1]) - int(profile.start)
+        m = r.metrics
+        info = self._info()
+        if m.diverged:
+            done = (k + m.n_ticks / profile.n_ticks) / self.n_moves
+            reward = -DIVERGENCE_PENALTY * (2.0 - done)
+            terminated = True
+            self._k = self.n_moves
+        else:
+            reward = -move_cost(m, distance, self._spec.settle_s, self.scenario.weights)
+            self._k = k + 1
+            terminated = self._k >= self.n_moves
+            if not terminated:
+                # at rest on the target: pick the part up (after an even move) or put it down
+                value = self.part_value if k % 2 == 0 else self._empty
+                self.plant.set_params({self.cycle.param: value}, keep_state=True)
+        feats = move_features(r, profile, distance, self._spec.settle_s)
+        obs = self._observation(feats, values)
+        info.update(cost=-reward, diverged=m.diverged, params=values)
+        return obs, float(reward), terminated, False, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        from servogym.sim._plot import response_rgb
+
+        if self._last is None:
+            return np.zeros((64, 64, 3), dtype=np.uint8)
+        label, run = self._last
+        title = f"{self.scenario.chip_model} on {self.scenario.plant}: {label}"
+        return response_rgb([(label, run)], title=title)
+
+
+def _trapezoid_time(distance: float, v: float, a: float) -> float:
+    """Duration of a trapezoidal (or triangular) move (s)."""
+    if distance <= 0:
+        return 0.0
+    if distance <= v * v / a:
+        return 2.0 * math.sqrt(distance / a)
+    return distance / v + v / a
+
+
+def observation_table() -> str:
+    """The observation table of the scheduling env, generated from the feature lists."""
+    rows = [(i, f"`last_{n}`", doc, t) for i, (n, t, doc) in enumerate(MOVE_FEATURES)]
+    base = len(rows)
+    rows += [(base + i, f"`{n}`", doc, t) for i, (n, t, doc) in enumerate(STATE_FEATURES)]
+    base = len(rows)
+    rows.append(
+        (
+            f"{base} .. {base} + n - 1",
+            "`last_action`",
+            "unit form of the registers last applied",
+            "float (1)",
+        )
+    )
+    return markdown_table(("Num", "Observation", "Meaning", "Type (Unit)"), rows)

@@ -1,0 +1,206 @@
+"""The tuning env: one plant instance per episode, one parameter set per episode."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from servogym.envs._actions import make_action_map
+from servogym.envs._common import make_scenario, markdown_table, options_plant_values
+from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP, move_features, plant_features
+from servogym.plants import get_plant
+from servogym.sim import Evaluator, MoveSpec, Scenario
+
+IDENT_SCALE = (0.25, 0.5, 0.5)
+"""The identification move is the scenario's first move with its distance, velocity limit and
+acceleration limit scaled by these factors (a short, gentle move), and the same settle time."""
+
+
+class TuneEnv(gym.Env):
+    """Choose a chip's complete parameter set for an axis you have only identified.
+
+    ## Description
+
+    Each episode draws a plant instance from the scenario's distribution (or takes it from
+    ``reset(options={"plant_values": {...}})``), runs a short, safe identification move on
+    it with the chip's default parameters, and shows the agent what an engineer could measure
+    on that move. The agent answers with a complete filter parameter set; the scenario's
+    evaluation moves run with it and the episode ends. Components: the chip family (legal
+    ranges, profile), the plant family (instance distribution), and
+    :class:`servogym.sim.Evaluator` (the moves and the cost of ``docs/cost.md``).
+
+    ## Action Space
+
+    ``Box(-1, 1, (n,), float32)``, one entry per tuned register, mapped onto the legal
+    integers by the chip's parameter space (``ParamSpec.from_unit``: log-uniform where the
+    space says ``log``, the lowest 5 % giving 0 where 0 is legal). ``params=`` chooses the
+    registers, ``fixed=`` holds some at given values; ``action_type="raw"`` gives the
+    integers themselves as ``MultiDiscrete`` (entry ``i`` means ``low_i + action[i]``).
+    Default registers of the PMD family (MC2100):
+
+    {action_table}
+
+    An action with a NaN, an infinity, an entry outside [-1, 1] or the wrong shape raises
+    ``ValueError`` naming the index and the register; nothing is run.
+
+    ## Observation Space
+
+    ``Box(-10, 10, (12,), float64)``: features of the identification move, clipped to
+    [-10, 10]. ``e_ref = max(4, 0.001 * |distance|)`` counts, as in the cost.
+
+    {observation_table}
+
+    With ``privileged=True`` the randomised plant parameters follow, each mapped to [-1, 1]
+    over its legal range (log scale for log-uniform ones), in the plant family's order.
+
+    ## Rewards
+
+    Minus the scenario's cost of the parameter set on this plant instance (docs/cost.md):
+    the mean move cost (0 .. 100) when no move diverged, ``-1000 * (2 - r)`` when one did
+    (``r``: fraction of the evaluation's ticks that ran). Always finite.
+
+    ## Starting State
+
+    A plant instance drawn with the env's ``np_random`` (``Scenario.draw_plant``), at rest at
+    its start position; the identification move (the first evaluation move scaled by
+    :data:`IDENT_SCALE`) has run with the chip's defaults (or ``ident_params``: a chip whose
+    defaults cannot hold the axis needs a safe set there).
+
+    ## Episode End
+
+    Always after one step (``terminated=True``).
+
+    ## Arguments
+
+    | Argument | Default | Type (Unit) | Meaning |
+    |---|---|---|---|
+    | `chip_model` | family's first model | str | chip model (any model of the id's family) |
+    | `plant` | from the id | str | plant family |
+    | `scenario` | `None` | Scenario | overrides chip_model, plant, plant_values, scale |
+    | `plant_values` | `{}` | dict (SI) | plant parameters held fixed |
+    | `sample_scale` | 1.0 | float (1) | width of the plant distribution (0 = nominal) |
+    | `params` | tunable registers | tuple[str] | registers the action sets |
+    | `fixed` | `{}` | dict (int) | registers held at a value |
+    | `action_type` | `"unit"` | str or action map | `"unit"`, `"raw"` or an object |
+    | `privileged` | `False` | bool | also observe the hidden plant parameters |
+    | `ident_params` | chip defaults | dict (int) | registers of the identification move |
+    | `render_mode` | `None` | str | `"rgb_array"`: picture of the last response |
+
+    ## Version History
+
+    * v0: Initial version.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 1}
+
+    def __init__(
+        self,
+        chip_model: str | None = None,
+        plant: str = "vertical-axis",
+        *,
+        scenario: Scenario | None = None,
+        plant_values: Mapping[str, float] | None = None,
+        sample_scale: float = 1.0,
+        params: tuple[str, ...] | None = None,
+        fixed: Mapping[str, Any] | None = None,
+        action_type: str | Any = "unit",
+        privileged: bool = False,
+        ident_params: Mapping[str, int] | None = None,
+        render_mode: str | None = None,
+        family: str | None = None,
+    ) -> None:
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}; "
+                f"got render_mode={render_mode!r}."
+            )
+        self.render_mode = render_mode
+        self.scenario = make_scenario(
+            chip_model, plant, scenario, plant_values, sample_scale, family
+        )
+        self.chip = self.scenario.chip
+        self.plant_family = get_plant(self.scenario.plant)
+        self.evaluator = Evaluator(self.scenario)  # compiles the plant, once
+        self.defaults = self.scenario.default_params()
+        self.ident_params = self.scenario.params(ident_params) if ident_params else self.defaults
+        self.actions = make_action_map(
+            action_type, self.chip, self.scenario.chip_model, params, fixed
+        )
+        self.action_space = self.actions.space
+        self.privileged = bool(privileged)
+        n = len(MOVE_FEATURES)
+        if self.privileged:
+            n += len(self.plant_family.randomised())
+        self.observation_space = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(n,), dtype=np.float64)
+        first = self.scenario.moves[0]
+        s_d, s_v, s_a = IDENT_SCALE
+        self.ident_move = MoveSpec(
+            first.distance * s_d, first.max_velocity * s_v, first.max_acceleration * s_a,
+            first.settle_s,
+        )  # fmt: skip
+        io = self.evaluator.plant.io
+        dt = self.chip.sample_time_s(self.ident_params)
+        self._ident_profile = self.chip.profile(self.ident_move.to_move(io.counts_per_unit), dt)
+        self._plant_values: dict[str, float] = {}
+        self._last: tuple[str, Any] | None = None
+        self._needs_reset = True
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        values = options_plant_values(self.scenario, options, self.np_random)
+        plant = self.evaluator.plant
+        plant.set_params(values)
+        self._plant_values = dict(plant.values)
+        loop = self.evaluator.loop
+        loop.set_params(self.ident_params)
+        prof = self._ident_profile
+        r = loop.run(prof, traces=True, reset=True)
+        distance = int(prof.position[-1]) - int(prof.start)
+        obs = move_features(r, prof, distance, self.ident_move.settle_s)
+        if self.privileged:
+            obs = np.concatenate([obs, plant_features(self.plant_family, self._plant_values)])
+        self._last = ("identification", r)
+        self._needs_reset = False
+        return obs, {"plant_values": dict(self._plant_values)}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._needs_reset:
+            raise RuntimeError("call reset() before step(): a tuning episode is one step")
+        values = self.actions.to_values(action)
+        params = self.actions.to_params(action)
+        ev = self.evaluator.evaluate(params, traces=self.render_mode is not None)
+        self._last = ("chosen parameters", ev)
+        self._needs_reset = True
+        obs = np.zeros(self.observation_space.shape)
+        info = {
+            "cost": ev.cost,
+            "diverged": ev.diverged,
+            "params": values,
+            "max_following_error": ev.max_following_error,
+            "saturation_fraction": ev.saturation_fraction,
+            "plant_values": dict(self._plant_values),
+        }
+        return obs, -float(ev.cost), True, False, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        from servogym.sim._plot import response_rgb
+
+        if self._last is None:
+            raise RuntimeError("call reset() before render()")
+        label, run = self._last
+        title = f"{self.scenario.chip_model} on {self.scenario.plant}: {label}"
+        return response_rgb([(label, run)], title=title)
+
+
+def observation_table() -> str:
+    """The observation table of the tuning env, generated from :data:`MOVE_FEATURES`."""
+    rows = [(i, f"`{n}`", doc, t) for i, (n, t, doc) in enumerate(MOVE_FEATURES)]
+    return markdown_table(("Num", "Observation", "Meaning", "Type (Unit)"), rows)
