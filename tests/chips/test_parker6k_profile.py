@@ -110,7 +110,11 @@ def test_profile_properties(args):
     # Within the limits (rounded to whole counts/s and counts/s^2, plus the remainder step).
     assert np.abs(p.velocity).max() <= v + 1
     tt = ssfr * {1: 330, 2: 185, 4: 160, 8: 150}[ssfr]
-    assert np.abs(p.acceleration).max() <= a + 1e6 / tt**2 + 1
+    # PK-P1 rounds the limit to the nearest micro-count/period^2 (+0.5); the S-curve's floored
+    # moving average (PK-P6) moves a second difference by less than 2 more; the report
+    # rounds to the nearest count/s^2 (+0.5, within the +1).
+    slack = (1.0 if kind == "trapezoidal" else 2.5) * 1e6 / tt**2
+    assert np.abs(p.acceleration).max() <= a + slack + 1
     assert (np.sign(p.velocity) * sign >= 0).all()
 
 

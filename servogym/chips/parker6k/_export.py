@@ -19,22 +19,24 @@ and a value with more decimals than the command's resolution. Where the syntax c
 
 from __future__ import annotations
 
-import dataclasses
-import datetime as _dt
 import difflib
-import json
 import re
-import warnings
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from servogym import __version__
+from servogym.chips._paramfile import (
+    FILE_FORMAT,
+    FILE_FORMAT_VERSION,
+    ExtraKey,
+    FileSchema,
+    ParamFile,
+    assumption_lines,
+)
 from servogym.chips._space import ParameterError
 from servogym.chips.parker6k._params import (
-    ASSUMPTION_CHOICES,
-    ASSUMPTION_IDS,
     CHIP_MODELS,
     COMMANDS,
     DECIMALS,
@@ -74,12 +76,6 @@ FORMATS: tuple[str, ...] = ("json", "6250", "6k")
 FILE_EXTENSIONS: dict[str, str] = {"json": ".json", "6250": ".prg", "6k": ".prg"}
 """Suggested file extension of each format."""
 
-FILE_FORMAT = "servogym-params"
-"""Value of the ``format`` key of a JSON parameter file."""
-
-FILE_FORMAT_VERSION = 1
-"""Version of the JSON parameter-file layout this module writes and reads."""
-
 CHIP_FAMILY = "parker6k"
 
 _SYSTEM_COMMANDS = ("SSFR", "SGSET")  # controller-wide: no axis fields, no prefix [A]
@@ -90,55 +86,6 @@ _KNOWN = (*COMMANDS.values(), "SGSET", "SGENB")
 # --------------------------------------------------------------------------------------
 # Shared checks
 # --------------------------------------------------------------------------------------
-
-
-def _legal_params(params: Parker6kParams | Mapping[str, Any]) -> Parker6kParams:
-    """Validate ``params`` again (a mapping is built through :meth:`Parker6kParams.from_dict`)."""
-    if isinstance(params, Parker6kParams):
-        return Parker6kParams(
-            **{f.name: getattr(params, f.name) for f in dataclasses.fields(params)}
-        )
-    if isinstance(params, Mapping):
-        return Parker6kParams.from_dict(params)
-    raise ParameterError(
-        f"params must be a Parker6kParams or a mapping of parameter names to values; got "
-        f"params of type {type(params).__name__}."
-    )
-
-
-def _check_assumption_names(values: Mapping[str, Any], where: str, *, require_all: bool) -> None:
-    names = list(ASSUMPTION_CHOICES)
-    for name in values:
-        if name not in ASSUMPTION_CHOICES:
-            close = difflib.get_close_matches(str(name), names, n=3)
-            hint = f" Did you mean {', '.join(close)}?" if close else ""
-            raise ParameterError(
-                f"{where} has an unknown assumption {name!r}; the assumptions are "
-                f"{', '.join(names)}.{hint}"
-            )
-    if require_all:
-        missing = [n for n in names if n not in values]
-        if missing:
-            raise ParameterError(
-                f"{where} must give every assumption so the behaviour is pinned down; "
-                f"missing {', '.join(missing)}."
-            )
-
-
-def _legal_assumptions(
-    assumptions: Parker6kAssumptions | Mapping[str, str] | None,
-) -> Parker6kAssumptions:
-    if assumptions is None:
-        return Parker6kAssumptions()
-    if isinstance(assumptions, Parker6kAssumptions):
-        return assumptions
-    if isinstance(assumptions, Mapping):
-        _check_assumption_names(assumptions, "assumptions", require_all=False)
-        return Parker6kAssumptions(**assumptions)
-    raise ParameterError(
-        f"assumptions must be a Parker6kAssumptions, a mapping of assumption names or None; "
-        f"got assumptions of type {type(assumptions).__name__}."
-    )
 
 
 def _check_axis(chip: Parker6kModel, axis: Any, where: str = "") -> int:
@@ -263,8 +210,7 @@ def read_header(text: str) -> dict[str, Any]:
         if m:
             fields.setdefault(m.group(1), m.group(2))
     if assumed:
-        _check_assumption_names(assumed, "the header", require_all=True)
-        fields["assumptions"] = Parker6kAssumptions(**assumed)
+        fields["assumptions"] = _SCHEMA.complete_assumptions(assumed, "the header")
     if switches:
         fields["sgenb"] = switches
     return fields
@@ -282,9 +228,7 @@ def _header_lines(p: Parker6kParams, a: Parker6kAssumptions, axis: int, fmt: str
         f"servogym_version: {__version__}",
         "units: SMPER in encoder counts (scaling off); gains as assumption PK-A1 says",
     ]
-    lines += [
-        f"assumption {ASSUMPTION_IDS[name]} {name}: {value}" for name, value in a.to_dict().items()
-    ]
+    lines += assumption_lines(a)
     lines += [f"sgenb tick={t} set={s}" for t, s in p.sgenb]
     return lines
 
@@ -331,8 +275,8 @@ def to_command_file(
     Raises:
         ParameterError: for an illegal set, axis or form.
     """
-    p = _legal_params(params)
-    a = _legal_assumptions(assumptions)
+    p = _SCHEMA.legal_params(params)
+    a = _SCHEMA.legal_assumptions(assumptions)
     fmt = _check_format(fmt)
     if fmt == "json":
         raise ParameterError("to_command_file writes fmt='6250' or fmt='6k'; use to_json.")
@@ -556,217 +500,28 @@ def _resolve_model(model: str | Parker6kModel | None, header: Mapping[str, Any])
 
 
 # --------------------------------------------------------------------------------------
-# JSON parameter file
+# JSON parameter file: the layout every family shares (servogym.chips._paramfile)
 # --------------------------------------------------------------------------------------
 
-_REQUIRED_KEYS = (
-    "format",
-    "format_version",
-    "chip_family",
-    "chip_model",
-    "sample_time_us",
-    "spec_version",
-    "assumptions",
-    "params",
-    "created",
-    "servogym_version",
+_SCHEMA = FileSchema(
+    family=CHIP_FAMILY,
+    title="Parker 6000-series",
+    spec_version=SPEC_VERSION,
+    params_type=Parker6kParams,
+    assumptions_type=Parker6kAssumptions,
+    get_model=get_model,
+    required=lambda chip: (*FIELDS, "sgset", "sgenb"),
+    extra_keys={
+        "sample_time_us": ExtraKey(
+            kind=int,
+            what="an integer",
+            rule=lambda p: f"the servo period of params.ssfr={p.ssfr} ({p.sample_time_us})",
+        )
+    },
+    noun="parameter",
 )
-_OPTIONAL_KEYS = ("metrics", "notes")
 
-
-@dataclasses.dataclass(frozen=True)
-class ParamFile:
-    """A parameter file read by :func:`from_json`.
-
-    Attributes:
-        params: The parameter set, validated.
-        assumptions: The assumption switches the set was tuned under.
-        provenance: Every other top-level entry of the file.
-    """
-
-    params: Parker6kParams
-    assumptions: Parker6kAssumptions
-    provenance: dict[str, Any]
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"values of type {type(obj).__name__} cannot be written as JSON")
-
-
-def _json_object(value: Any, name: str) -> dict[str, Any]:
-    if not isinstance(value, Mapping):
-        raise ParameterError(
-            f"{name} must be a mapping (written as a JSON object); got {name} of type "
-            f"{type(value).__name__}."
-        )
-    try:
-        return json.loads(json.dumps(dict(value), allow_nan=False, default=_json_default))
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(
-            f"{name} must hold only JSON values (str keys; str, int, finite float, bool, "
-            f"None, lists and mappings of them; NumPy scalars are converted): {exc}."
-        ) from None
-
-
-def _created_text(created: str | _dt.datetime | None) -> str:
-    if created is None:
-        return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
-    if isinstance(created, _dt.datetime):
-        return created.isoformat()
-    if isinstance(created, str):
-        try:
-            _dt.datetime.fromisoformat(created)
-        except ValueError:
-            raise ParameterError(
-                f"created must be an ISO 8601 timestamp such as '2025-01-31T12:00:00+00:00'; "
-                f"got created={created!r}."
-            ) from None
-        return created
-    raise ParameterError(
-        f"created must be a datetime, an ISO 8601 string or None; got created of type "
-        f"{type(created).__name__}."
-    )
-
-
-def to_json(
-    params: Parker6kParams | Mapping[str, Any],
-    assumptions: Parker6kAssumptions | Mapping[str, str] | None = None,
-    *,
-    metrics: Mapping[str, Any] | None = None,
-    notes: Mapping[str, Any] | None = None,
-    created: str | _dt.datetime | None = None,
-) -> str:
-    """A JSON parameter file with provenance.
-
-    Args:
-        params: The parameter set; validated again before writing.
-        assumptions: The switches the set was tuned under; default all defaults.
-        metrics: Optional results to keep with the set.
-        notes: Optional free-form notes.
-        created: Creation time; default now (UTC).
-
-    Returns:
-        The file text (2-space indent, trailing newline).
-    """
-    p = _legal_params(params)
-    a = _legal_assumptions(assumptions)
-    doc: dict[str, Any] = {
-        "format": FILE_FORMAT,
-        "format_version": FILE_FORMAT_VERSION,
-        "chip_family": CHIP_FAMILY,
-        "chip_model": p.model,
-        "sample_time_us": p.sample_time_us,
-        "spec_version": SPEC_VERSION,
-        "assumptions": a.to_dict(),
-        "params": p.to_dict(),
-        "created": _created_text(created),
-        "servogym_version": __version__,
-    }
-    if metrics is not None:
-        doc["metrics"] = _json_object(metrics, "metrics")
-    if notes is not None:
-        doc["notes"] = _json_object(notes, "notes")
-    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
-
-
-def _expect(doc: Mapping[str, Any], key: str, kind: type | tuple[type, ...], what: str) -> Any:
-    value = doc[key]
-    if (isinstance(value, bool) and kind is not bool) or not isinstance(value, kind):
-        raise ParameterError(f"{key} must be {what}; got {key}={value!r}.")
-    return value
-
-
-def from_json(text: str | bytes) -> ParamFile:
-    """Read a JSON parameter file written by :func:`to_json`.
-
-    Raises:
-        ParameterError: if the text is not a servogym parameter file of this family, misses
-            or adds keys, or lists an illegal or incomplete parameter set.
-
-    Warns:
-        UserWarning: if the file was written for another ``spec_version``.
-    """
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ParameterError(
-            f"a parameter file must be JSON; invalid JSON at line {exc.lineno} column "
-            f"{exc.colno}: {exc.msg}."
-        ) from None
-    if not isinstance(doc, dict):
-        raise ParameterError(
-            f"a parameter file must be a JSON object; got a JSON {type(doc).__name__}."
-        )
-    if doc.get("format") != FILE_FORMAT:
-        raise ParameterError(
-            f"format must be {FILE_FORMAT!r} (a servogym parameter file); got "
-            f"format={doc.get('format')!r}."
-        )
-    version = doc.get("format_version")
-    if type(version) is not int or version != FILE_FORMAT_VERSION:
-        raise ParameterError(
-            f"format_version must be {FILE_FORMAT_VERSION}; got format_version={version!r}."
-        )
-    if doc.get("chip_family") != CHIP_FAMILY:
-        raise ParameterError(
-            f"chip_family must be {CHIP_FAMILY!r} for a Parker 6000-series parameter file; "
-            f"got chip_family={doc.get('chip_family')!r}. Read other families with their own "
-            f"importer."
-        )
-    missing = [k for k in _REQUIRED_KEYS if k not in doc]
-    if missing:
-        raise ParameterError(f"the parameter file misses the keys {', '.join(missing)}.")
-    allowed = _REQUIRED_KEYS + _OPTIONAL_KEYS
-    unknown = [k for k in doc if k not in allowed]
-    if unknown:
-        raise ParameterError(
-            f"the parameter file has unknown keys {', '.join(map(repr, unknown))}; "
-            f"format_version {FILE_FORMAT_VERSION} allows {', '.join(allowed)}."
-        )
-    chip = get_model(_expect(doc, "chip_model", str, "a 6000-series model name"))
-    values = _expect(doc, "params", dict, "a JSON object of parameter values")
-    if values.get("model") != chip.name:
-        raise ParameterError(
-            f"params.model must equal chip_model {chip.name!r}; got "
-            f"params.model={values.get('model')!r}."
-        )
-    absent = [r for r in (*FIELDS, "sgset", "sgenb") if r not in values]
-    if absent:
-        raise ParameterError(
-            f"params must give every parameter of {chip.name} (an import takes no defaults); "
-            f"missing {', '.join(absent)}."
-        )
-    params = Parker6kParams.from_dict(values)
-    sample = _expect(doc, "sample_time_us", int, "an integer")
-    if sample != params.sample_time_us:
-        raise ParameterError(
-            f"sample_time_us must equal the servo period of params.ssfr={params.ssfr} "
-            f"({params.sample_time_us}); got sample_time_us={sample!r}."
-        )
-    asm = _expect(doc, "assumptions", dict, "a JSON object of assumption switches")
-    _check_assumption_names(asm, "assumptions", require_all=True)
-    assumptions = Parker6kAssumptions(**asm)
-    spec = _expect(doc, "spec_version", str, "a string")
-    _created_text(_expect(doc, "created", str, "an ISO 8601 timestamp string"))
-    _expect(doc, "servogym_version", str, "a string")
-    for key in _OPTIONAL_KEYS:
-        if key in doc:
-            _expect(doc, key, dict, "a JSON object")
-    if spec != SPEC_VERSION:
-        warnings.warn(
-            f"the parameter file was written for spec_version {spec!r} but this servogym "
-            f"implements {SPEC_VERSION!r}: the settings load unchanged, but the emulated "
-            f"behaviour may differ from the one its metrics were measured with. Evaluate the "
-            f"set again to refresh its metrics.",
-            UserWarning,
-            stacklevel=2,
-        )
-    provenance = {k: v for k, v in doc.items() if k not in ("params", "assumptions")}
-    return ParamFile(params=params, assumptions=assumptions, provenance=provenance)
+to_json, from_json = _SCHEMA.json_functions(__name__)
 
 
 # --------------------------------------------------------------------------------------
@@ -813,11 +568,5 @@ def import_params(
     """
     fmt = _check_format(fmt)
     if fmt == "json":
-        params = from_json(text).params
-        if model is not None and get_model(model).name != params.model:
-            raise ParameterError(
-                f"model={get_model(model).name!r} disagrees with the file's chip_model "
-                f"{params.model!r}; pass model={params.model!r} or model=None."
-            )
-        return params
+        return _SCHEMA.read_params(text, model)
     return from_command_file(text, fmt, model, axis)
