@@ -102,7 +102,10 @@ def evaluate_command(
     ] = None,
     fixed: Annotated[
         Path | None,
-        typer.Option(help="JSON file of register values: a 'best fixed set' baseline."),
+        typer.Option(
+            help="A 'best fixed set' baseline: a servogym parameter file (as `servogym tune` "
+            "writes) or a JSON object of register values."
+        ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,
 ) -> None:
@@ -129,10 +132,10 @@ def evaluate_command(
         _fail("give --env, or a --model whose run directory has a config.json")
     _check_env_id(env)
     kwargs.update(_json_option(env_kwargs, "--env-kwargs"))
+    e = gym.make(env, **kwargs)
     extra = {}
     if fixed is not None:
-        extra["best fixed set"] = json.loads(fixed.read_text())
-    e = gym.make(env, **kwargs)
+        extra["best fixed set"] = _fixed_values(fixed, e.unwrapped.scenario.chip_model)
     policies: dict[str, Any] = {}
     if model is not None:
         from servogym.agents._train import load_policy
@@ -154,3 +157,28 @@ def evaluate_command(
             f"{s['mean_step_cost']:.2f}",
         )  # fmt: skip
     console.print(table)
+
+
+def _fixed_values(path: Path, chip_model: str) -> dict[str, Any]:
+    """Register values of a --fixed file: a servogym parameter file or a plain JSON object."""
+    from servogym.chips import ParameterError, load_params_file
+
+    try:
+        text = path.read_text()
+        doc = json.loads(text)
+    except (OSError, json.JSONDecodeError) as exc:
+        _fail(f"--fixed {str(path)!r} is not a readable JSON file: {exc}")
+    if isinstance(doc, dict) and "chip_family" in doc:
+        try:
+            params = load_params_file(text).params
+        except ParameterError as exc:
+            _fail(f"--fixed {str(path)!r}: {exc}")
+        if params.model != chip_model:
+            _fail(
+                f"--fixed {str(path)!r} is a {params.model} parameter set; the env runs "
+                f'{chip_model} (pass --env-kwargs \'{{"chip_model": "{params.model}"}}\').'
+            )
+        return params.to_dict()
+    if not isinstance(doc, dict):
+        _fail(f"--fixed {str(path)!r} must hold a JSON object of register values.")
+    return doc

@@ -40,6 +40,28 @@ class ActionMap(Protocol):
         """An action that gives ``values`` (as closely as the map can); for baselines."""
 
 
+def _baseline_values(amap: Any, values: Mapping[str, Any]) -> dict[str, int]:
+    """Check a baseline's register values against an action map; return every action entry.
+
+    Unknown names and illegal values raise (naming them). A register the action does not set
+    must equal what the env uses for it (its fixed value, else the chip default): a baseline
+    is never run silently with other values than it names.
+    """
+    space = amap.family.parameter_space(amap.chip_model)
+    checked = space.validate({k: v for k, v in values.items() if k != "model"})
+    for name, value in checked.items():
+        if name in amap.names:
+            continue
+        used = amap.fixed.get(name, space[name].default)
+        if value != used:
+            raise ValueError(
+                f"the baseline sets {name}={value}, a register this env's action does not set "
+                f"(the env uses {name}={used}); fix it with fixed={{{name!r}: {value}}} or "
+                f"leave it out."
+            )
+    return {s.name: checked.get(s.name, space[s.name].default) for s in amap.specs}
+
+
 def _resolve(
     family: ChipFamily, chip_model: str, params: tuple[str, ...] | None, fixed: Mapping[str, Any]
 ) -> tuple[tuple[ParamSpec, ...], dict[str, int]]:
@@ -128,12 +150,15 @@ class UnitActions:
         return _make(self.family, self.chip_model, self.to_values(action))
 
     def from_values(self, values: Mapping[str, int]) -> np.ndarray:
-        """The action closest to ``values`` (registers missing take the chip default)."""
-        space = self.family.parameter_space(self.chip_model)
-        return np.array(
-            [s.to_unit(int(values.get(s.name, space[s.name].default))) for s in self.specs],
-            dtype=np.float32,
-        )
+        """The action closest to ``values`` (registers missing take the chip default).
+
+        Raises:
+            ParameterError: for an unknown register or an illegal value.
+            ValueError: for a register the action does not set, with another value than the
+                env uses for it.
+        """
+        full = _baseline_values(self, values)
+        return np.array([s.to_unit(full[s.name]) for s in self.specs], dtype=np.float32)
 
 
 class RawActions:
@@ -185,12 +210,10 @@ class RawActions:
         return _make(self.family, self.chip_model, self.to_values(action))
 
     def from_values(self, values: Mapping[str, int]) -> np.ndarray:
-        """The action giving ``values`` (registers missing take the chip default)."""
-        space = self.family.parameter_space(self.chip_model)
-        return np.array(
-            [int(values.get(s.name, space[s.name].default)) - s.low for s in self.specs],
-            dtype=np.int64,
-        )
+        """The action giving ``values`` (registers missing take the chip default); raises as
+        :meth:`UnitActions.from_values` does."""
+        full = _baseline_values(self, values)
+        return np.array([full[s.name] - s.low for s in self.specs], dtype=np.int64)
 
 
 ACTION_TYPES = {"unit": UnitActions, "raw": RawActions}
