@@ -62,12 +62,23 @@ class Move:
 class ChipFamily(abc.ABC):
     """One chip family: its models, parameter sets, compiled filter and profile generator.
 
+    A family sets the class attributes below and implements :meth:`profile`; everything
+    else is derived from them.
+
     Attributes:
         name: Family id (``"pmd"``).
         code: Chip family code the compiled loop dispatches on (:data:`FAMILY_CODES`).
         models: Chip model records by name.
-        params_type: The family's parameter-set class.
-        assumptions_type: The family's assumption-switch class.
+        params_type: The family's parameter-set class (``from_dict``, ``to_array``,
+            ``model``, ``sample_time_s``, ``motor_limit``).
+        assumptions_type: The family's assumption-switch class (an ``AssumptionSet``).
+        reference_type: The plain-Python reference filter class, ``(params, assumptions)``.
+        export_module: The module with ``export``, ``import_params``, ``from_json``.
+        formats: Export formats; every one takes ``assumptions`` and ``axis`` (JSON ignores
+            ``axis``).
+        file_extensions: Suggested file extension per format.
+        env_name: The family's name in env ids (``Tune-<env_name>-...``); empty: the name
+            in capitals.
     """
 
     name: str
@@ -75,27 +86,20 @@ class ChipFamily(abc.ABC):
     models: Mapping[str, Any]
     params_type: type
     assumptions_type: type
+    reference_type: type
+    export_module: Any
+    formats: tuple[str, ...] = ("json",)
+    file_extensions: Mapping[str, str] = {"json": ".json"}
     env_name: str = ""
-    """The family's name in env ids (``Tune-<env_name>-...``); empty: the name in capitals."""
 
+    @staticmethod
     @abc.abstractmethod
-    def parameter_space(self, model: str) -> ParameterSpace:
+    def parameter_space(model: str) -> ParameterSpace:
         """Legal registers of a chip model."""
 
+    @staticmethod
     @abc.abstractmethod
-    def make_params(self, model: str, values: Mapping[str, Any] | None = None) -> Any:
-        """A validated parameter set: the model's defaults updated with ``values``."""
-
-    @abc.abstractmethod
-    def default_assumptions(self) -> Any:
-        """The family's assumption switches at their defaults."""
-
-    @abc.abstractmethod
-    def kernel_arrays(self, params: Any, assumptions: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Register array and assumption array for the compiled loop."""
-
-    @abc.abstractmethod
-    def new_state(self) -> np.ndarray:
+    def new_state() -> np.ndarray:
         """A zeroed filter state for the compiled loop."""
 
     @abc.abstractmethod
@@ -103,28 +107,39 @@ class ChipFamily(abc.ABC):
         """The chip's own profile for ``move``: int64 ``position``/``velocity``/
         ``acceleration`` arrays, one entry per servo cycle, and ``start``."""
 
-    @abc.abstractmethod
-    def export(self, params: Any, fmt: str, **kw: Any) -> str:
-        """The parameter set in one of ``formats``.
+    def make_params(self, model: str, values: Mapping[str, Any] | None = None) -> Any:
+        """A validated parameter set: the model's defaults updated with ``values``."""
+        return self.params_type.from_dict({"model": model, **(values or {})})
 
-        Every format takes ``assumptions`` (recorded as provenance) and ``axis`` (the axis or
-        motor number; JSON ignores it).
-        """
+    def default_assumptions(self) -> Any:
+        """The family's assumption switches at their defaults."""
+        return self.assumptions_type()
 
-    formats: tuple[str, ...] = ("json",)
-    file_extensions: Mapping[str, str] = {"json": ".json"}
+    def kernel_arrays(self, params: Any, assumptions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Register array and assumption array for the compiled loop."""
+        asm = assumptions if assumptions is not None else self.assumptions_type()
+        if not isinstance(asm, self.assumptions_type):
+            raise TypeError(
+                f"assumptions for a {self.name} chip must be {self.assumptions_type.__name__}; "
+                f"got {type(asm).__name__}"
+            )
+        return params.to_array(), asm.to_array()
 
-    @abc.abstractmethod
-    def import_params(self, text: str, fmt: str, model: str | None = None) -> Any:
-        """A parameter set read back from one of ``formats`` (identical to what was exported)."""
-
-    @abc.abstractmethod
     def reference_filter(self, params: Any, assumptions: Any = None) -> Any:
         """The family's plain-Python reference filter (``step``, ``motion_error``)."""
+        return self.reference_type(params, assumptions)
 
-    @abc.abstractmethod
+    def export(self, params: Any, fmt: str, **kw: Any) -> str:
+        """The parameter set in one of ``formats``."""
+        return self.export_module.export(params, fmt, **kw)
+
+    def import_params(self, text: str, fmt: str, model: str | None = None) -> Any:
+        """A parameter set read back from one of ``formats`` (identical to what was exported)."""
+        return self.export_module.import_params(text, fmt, model)
+
     def from_json(self, text: str) -> Any:
         """Load a servogym JSON parameter file of this family (``.params``, ``.assumptions``)."""
+        return self.export_module.from_json(text)
 
     def sample_time_s(self, params: Any) -> float:
         """Servo period of a parameter set (s)."""

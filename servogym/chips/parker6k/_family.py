@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
-from servogym.chips._space import ParameterError, ParameterSpace
+from servogym.chips._space import ParameterError
 from servogym.chips.parker6k import _export, _kernel, _profile
 from servogym.chips.parker6k._params import (
     CHIP_MODELS,
@@ -18,6 +18,7 @@ from servogym.chips.parker6k._params import (
     Parker6kParams,
     parameter_space,
 )
+from servogym.chips.parker6k._reference import Parker6kReferenceFilter
 
 
 class Parker6kFamily(ChipFamily):
@@ -29,36 +30,12 @@ class Parker6kFamily(ChipFamily):
     params_type = Parker6kParams
     assumptions_type = Parker6kAssumptions
     env_name = "Parker6K"
+    reference_type = Parker6kReferenceFilter
+    export_module = _export
     formats = _export.FORMATS
     file_extensions = _export.FILE_EXTENSIONS
-
-    def parameter_space(self, model: str) -> ParameterSpace:
-        return parameter_space(model)
-
-    def make_params(self, model: str, values: Mapping[str, Any] | None = None) -> Parker6kParams:
-        return Parker6kParams.from_dict({"model": model, **(values or {})})
-
-    def default_assumptions(self) -> Parker6kAssumptions:
-        return Parker6kAssumptions()
-
-    def kernel_arrays(
-        self, params: Parker6kParams, assumptions: Parker6kAssumptions | None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        asm = assumptions if assumptions is not None else Parker6kAssumptions()
-        if not isinstance(asm, Parker6kAssumptions):
-            raise TypeError(
-                "assumptions for a Parker 6000-series controller must be Parker6kAssumptions; "
-                f"got {type(asm).__name__}"
-            )
-        return params.to_array(), asm.to_array()
-
-    def reference_filter(self, params, assumptions=None):
-        from servogym.chips.parker6k._reference import Parker6kReferenceFilter
-
-        return Parker6kReferenceFilter(params, assumptions)
-
-    def new_state(self) -> np.ndarray:
-        return _kernel.new_state()
+    parameter_space = staticmethod(parameter_space)
+    new_state = staticmethod(_kernel.new_state)
 
     def profile(self, move: Move, sample_time_s: float) -> _profile.Parker6kProfile:
         ssfr = _profile.ssfr_of(sample_time_s)
@@ -72,15 +49,6 @@ class Parker6kFamily(ChipFamily):
             jerk_counts_per_s3=move.jerk_counts_per_s3,
             settle_ticks=round(move.settle_s / sample_time_s),
         )
-
-    def export(self, params: Parker6kParams, fmt: str, **kw: Any) -> str:
-        return _export.export(params, fmt, **kw)
-
-    def import_params(self, text: str, fmt: str, model: str | None = None) -> Any:
-        return _export.import_params(text, fmt, model)
-
-    def from_json(self, text: str) -> _export.ParamFile:
-        return _export.from_json(text)
 
 
 PARKER6K = register_family(Parker6kFamily())
