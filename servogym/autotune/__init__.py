@@ -20,6 +20,8 @@ from servogym.autotune._classical import (
 from servogym.autotune._gains import (
     GAIN_MAPS,
     GainMap,
+    Parker6kGainMap,
+    PMACGainMap,
     PMDGainMap,
     ServoDesign,
     design_registers,
@@ -79,7 +81,9 @@ __all__ = [
     "ModelBasedTuner",
     "OptunaTuner",
     "Outcome",
+    "PMACGainMap",
     "PMDGainMap",
+    "Parker6kGainMap",
     "RandomTuner",
     "RelayTuner",
     "SearchSpace",

@@ -69,9 +69,7 @@ class _Context:
         values = design_registers(design, self.base, self.base_values, self.assumptions)
         if experiment:
             # An experiment must not trip the chip's own error limit, if it has one.
-            spec = self.family.parameter_space(self.space.chip_model)
-            if "position_error_limit" in spec:
-                values["position_error_limit"] = spec["position_error_limit"].high
+            values.update(self.family.error_trip_off)
             return values
         kept = {n: values[n] for n in self.space.names}
         return {**self.base_values, **kept}
@@ -160,7 +158,7 @@ class VendorStepTuner(Tuner):
         step = int(min(max(50.0, 0.01 * ctx.move_counts), 5000.0))
         half = _ticks(0.15, ctx.dt)
         profile = _Profile.setpoints([(step, half), (0, half)])
-        limit = float(ctx.base_values.get("motor_limit", FULL_SCALE))
+        limit = float(ctx.family.motor_limit(ctx.base))
 
         def test(design: ServoDesign, note: str) -> dict[str, Any] | None:
             if session.remaining <= reserve:

@@ -79,6 +79,8 @@ class ChipFamily(abc.ABC):
         file_extensions: Suggested file extension per format.
         env_name: The family's name in env ids (``Tune-<env_name>-...``); empty: the name
             in capitals.
+        error_trip_off: Register values that switch off the chip's own following-error trip
+            (for identification experiments that must not be cut short by it).
     """
 
     name: str
@@ -91,6 +93,7 @@ class ChipFamily(abc.ABC):
     formats: tuple[str, ...] = ("json",)
     file_extensions: Mapping[str, str] = {"json": ".json"}
     env_name: str = ""
+    error_trip_off: Mapping[str, int] = {}
 
     @staticmethod
     @abc.abstractmethod

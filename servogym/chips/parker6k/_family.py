@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -34,6 +35,7 @@ class Parker6kFamily(ChipFamily):
     export_module = _export
     formats = _export.FORMATS
     file_extensions = _export.FILE_EXTENSIONS
+    error_trip_off = MappingProxyType({"smper": 0})  # PK-A8: SMPER0 disables the check
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
 

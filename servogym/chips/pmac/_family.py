@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
 from servogym.chips.pmac import _export, _kernel, _profile
 from servogym.chips.pmac._params import (
@@ -25,6 +27,7 @@ class PMACFamily(ChipFamily):
     export_module = _export
     formats = _export.FORMATS
     file_extensions = _export.FILE_EXTENSIONS
+    error_trip_off = MappingProxyType({"fatal_following_error_limit": 0})  # Ixx11 = 0 disables it
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
 

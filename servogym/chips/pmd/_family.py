@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
 from servogym.chips.pmd import _export, _kernel, _profile
 from servogym.chips.pmd._params import CHIP_MODELS, PMDAssumptions, PMDParams, parameter_space
@@ -20,6 +22,9 @@ class PMDFamily(ChipFamily):
     export_module = _export
     formats = _export.FORMATS
     file_extensions = _export.FILE_EXTENSIONS
+    error_trip_off = MappingProxyType(
+        {"position_error_limit": 2**31 - 1}
+    )  # PMD-A10: the largest limit
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
 
