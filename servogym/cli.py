@@ -219,10 +219,12 @@ def _fmt(value: object) -> str:
 def _register_subcommands() -> None:
     from servogym.agents._cli import evaluate_command, train_command
     from servogym.autotune._cli import tune_command
+    from servogym.autotune.bench._cli import benchmark_command
 
     app.command("tune")(tune_command)
     app.command("train")(train_command)
     app.command("evaluate")(evaluate_command)
+    app.command("benchmark")(benchmark_command)
 
 
 _register_subcommands()

@@ -1,0 +1,195 @@
+"""``servogym benchmark``: register with ``app.command("benchmark")(benchmark_command)``.
+
+Imports nothing heavy at module level (Optuna, MuJoCo and numba load when the command runs).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+DEFAULT_TUNERS = "tpe,gp,cmaes,random,sobol,vendor-step,relay,model-based"
+
+
+def _ints(text: str, option: str) -> list[int]:
+    try:
+        out = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        out = []
+    if not out or any(b < 1 for b in out):
+        raise typer.BadParameter(f"{option} takes positive integers, comma separated; got {text!r}")
+    return sorted(set(out))
+
+
+def benchmark_command(
+    out: Annotated[Path, typer.Option("--out", help="Output folder (job results, report).")],
+    suite: Annotated[str, typer.Option("--suite", help="Suite name.")] = "servobench-v0",
+    split: Annotated[
+        str, typer.Option("--split", help="Instances: train, heldout or all.")
+    ] = "train",
+    tuners: Annotated[
+        str, typer.Option("--tuners", help="Comma-separated tuner names.")
+    ] = DEFAULT_TUNERS,
+    budget: Annotated[
+        str, typer.Option("--budget", help="Budget(s), comma separated, e.g. 20,50,100.")
+    ] = "50",
+    seeds: Annotated[int, typer.Option("--seeds", help="Seeds 0..N-1 per tuner.")] = 5,
+    workers: Annotated[int, typer.Option("--workers", help="Processes.")] = 1,
+    limit: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--limit",
+            help="Reduced plan for a tuner: TUNER:seeds=N,budget=B,instances=K (repeatable), "
+            "e.g. gp:seeds=1,budget=50,instances=8.",
+        ),
+    ] = None,
+    instance: Annotated[
+        list[str] | None,
+        typer.Option("--instance", help="Run only these instance ids (repeatable)."),
+    ] = None,
+    dry_run: Annotated[
+        bool, typer.Option("--dry-run", help="Print the plan and the time estimate only.")
+    ] = False,
+    reference: Annotated[
+        bool,
+        typer.Option(
+            "--reference",
+            help="Run the reference search instead (best-known costs) and write the data "
+            "file to OUT/<suite>.json.",
+        ),
+    ] = False,
+    seed_from: Annotated[
+        Path | None,
+        typer.Option(
+            "--seed-from",
+            help="With --reference: instead of the first stage, refine the data file OUT/"
+            "<suite>.json from the best safe sets of the benchmark runs in this folder.",
+        ),
+    ] = None,
+) -> None:
+    """Benchmark autotuners on a versioned suite (resumable: finished jobs are skipped)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from servogym.autotune.bench._reference import (
+        load_best_known,
+        refine_from_runs,
+        run_reference,
+    )
+    from servogym.autotune.bench._report import write_report
+    from servogym.autotune.bench._runner import (
+        Job,
+        TunerLimit,
+        estimate_seconds,
+        load_job,
+        load_results,
+        pack_results,
+        plan_jobs,
+        run_jobs,
+    )
+    from servogym.autotune.bench._suite import get_suite
+
+    console = Console()
+    try:
+        s = get_suite(suite)
+        ids = s.ids(split)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    if instance:
+        for i in instance:
+            s.spec(i)  # raises with close matches
+        ids = [i for i in ids if i in set(instance)]
+    out.mkdir(parents=True, exist_ok=True)
+    if reference and seed_from is not None:
+        t0 = time.perf_counter()
+        path = out / f"{suite}.json"
+        recs = [r for r in load_results(seed_from) if r["instance"] in set(ids)]
+        doc = refine_from_runs(suite, recs, path, workers=workers, run_label=str(seed_from))
+        st2 = doc["method"]["stage2"]
+        n_ref, n_imp = len(st2["instances_refined"]), len(st2["instances_improved"])
+        dt = time.perf_counter() - t0
+        console.print(f"stage 2: refined {n_ref} instances, improved {n_imp}; {dt:.0f} s")
+        return
+    if reference:
+        t0 = time.perf_counter()
+        path = out / f"{suite}.json"
+        console.print(f"reference search on {len(ids)} instances -> {path}")
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TimeElapsedColumn(), console=console) as bar:  # fmt: skip
+            task = bar.add_task("reference", total=len(ids))
+
+            def done(i: str, rec: dict) -> None:
+                bar.console.print(f"{i}: {rec['cost']:.4g} (feasible {rec['feasible']}, "
+                                  f"{rec['found_by']}, {rec['wall_s']:.0f} s)")  # fmt: skip
+                bar.advance(task)
+
+            run_reference(suite, path, split=split, workers=workers, on_done=done)
+        console.print(f"done in {time.perf_counter() - t0:.0f} s")
+        return
+    budgets = _ints(budget, "--budget")
+    tuner_list = [t.strip() for t in tuners.split(",") if t.strip()]
+    try:
+        limits = dict(TunerLimit.parse(x) for x in limit or [])
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    instances = [s.instance(i) for i in ids]
+    from servogym.autotune._session import TuneError
+
+    try:
+        jobs, skipped = plan_jobs(instances, tuner_list, budgets, list(range(seeds)), limits)
+    except TuneError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    # Measure one evaluation of each instance for the estimate.
+    eval_s = {}
+    for inst in instances:
+        inst.evaluate({})
+        t = time.perf_counter()
+        inst.evaluate({})
+        eval_s[inst.id] = time.perf_counter() - t
+    todo = [j for j in jobs if load_job(out, j) is None]
+    est = estimate_seconds(todo, eval_s)
+    config = {
+        "suite": suite, "split": split, "tuners": tuner_list, "budgets": budgets,
+        "seeds": seeds, "workers": workers, "limits": {k: vars(v) for k, v in limits.items()},
+        "instances": ids, "n_jobs": len(jobs),
+    }  # fmt: skip
+    (out / "config.json").write_text(json.dumps(config, indent=1) + "\n")
+    console.print(
+        f"{len(jobs)} jobs, {len(todo)} to run ({len(ids)} instances, tuners "
+        f"{', '.join(tuner_list)}, budgets "
+        f"{budgets}, {seeds} seeds); {len(skipped)} (tuner, instance) pairs n/a. Estimate: "
+        f"{est:.0f} CPU-s, about {est / max(workers, 1) / 60:.1f} min on {workers} process(es) "
+        f"(mean evaluation {1000 * sum(eval_s.values()) / len(eval_s):.1f} ms)."
+    )
+    if dry_run:
+        return
+    t0 = time.perf_counter()
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console) as bar:  # fmt: skip
+        task = bar.add_task("jobs", total=len(jobs))
+
+        def on_done(job: Job, rec: dict | None, was_skipped: bool) -> None:
+            if not was_skipped and rec is not None:
+                best = min((c for c in rec["cost"] if c is not None), default=None)
+                bar.update(task, description=f"{job.tuner} {job.instance.split('/', 1)[1]} "
+                           f"s{job.seed}: best {best} in {rec['wall_s']:.1f} s")  # fmt: skip
+            bar.advance(task)
+
+        n_run, n_skip = run_jobs(jobs, out, workers=workers, on_done=on_done)
+    console.print(f"{n_run} jobs run, {n_skip} already finished; {time.perf_counter() - t0:.0f} s")
+    pack_results(out)
+    wanted = {j.key for j in jobs}
+    records = [r for r in load_results(out)
+               if Job(r["tuner"], r["instance"], r["seed"], r["budget"]).key in wanted]  # fmt: skip
+    notes = []
+    for name, lim in limits.items():
+        notes.append(f"{name} reduced: " + ", ".join(
+            f"{k}={v}" for k, v in vars(lim).items() if v is not None) + ".")  # fmt: skip
+    summary = write_report(records, out, best_known=load_best_known(suite), budgets=budgets,
+                           tuners=tuner_list, instances=ids, skipped=skipped,
+                           notes=notes)  # fmt: skip
+    console.print(f"report: {out / 'report.md'} ({len(summary['rows'])} rows)")
