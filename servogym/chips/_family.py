@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import difflib
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from servogym.chips._space import ParameterError, ParameterSpace
+from servogym.chips._space import ParameterError, ParameterSpace, resolve_name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,14 +178,7 @@ def all_models() -> dict[str, ChipFamily]:
 def get_chip(model: str) -> tuple[ChipFamily, str]:
     """The family and canonical name of a chip model (case-insensitive), or a clear error."""
     models = all_models()
-    by_upper = {m.upper(): m for m in models}
-    key = by_upper.get(model.upper())
-    if key is None:
-        close = difflib.get_close_matches(model.upper(), list(by_upper), n=3)
-        hint = f" Did you mean {', '.join(by_upper[c] for c in close)}?" if close else ""
-        raise ParameterError(
-            f"unknown chip model {model!r}; known models are {', '.join(models)}.{hint}"
-        )
+    key = resolve_name(model, models, "chip model")
     return models[key], key
 
 

@@ -455,3 +455,17 @@ def _expect(doc: Mapping[str, Any], key: str, kind: type | tuple[type, ...], wha
     if (isinstance(value, bool) and kind is not bool) or not isinstance(value, kind):
         raise ParameterError(f"{key} must be {what}; got {key}={value!r}.")
     return value
+
+
+def check_format(fmt: Any, extensions: Mapping[str, str], *, ignore_case: bool = False) -> str:
+    """``fmt`` if it names one of a family's export formats (the keys of ``extensions``),
+    else a :class:`ParameterError` listing them with their extensions and the closest match.
+    """
+    name = fmt.lower() if ignore_case and isinstance(fmt, str) else fmt
+    if name in extensions:
+        return name
+    formats = list(extensions)
+    close = difflib.get_close_matches(str(name), formats, n=1)
+    hint = f" Did you mean {close[0]!r}?" if close else ""
+    listed = ", ".join(f"{f!r} ({extensions[f]})" for f in formats)
+    raise ParameterError(f"fmt must be one of {listed}; got fmt={fmt!r}.{hint}")

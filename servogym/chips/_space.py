@@ -20,6 +20,21 @@ class ParameterError(ValueError):
     """A parameter value is illegal for the chip: wrong type, out of range, or unknown."""
 
 
+def resolve_name(name: str, known: Any, what: str, *, n: int = 3) -> str:
+    """The key of ``known`` that is ``name`` up to case, or a :class:`ParameterError`.
+
+    The error reads ``unknown <what> <name>; known models are ...`` and suggests up to ``n``
+    close matches.
+    """
+    by_upper = {k.upper(): k for k in known}
+    key = by_upper.get(str(name).upper())
+    if key is not None:
+        return key
+    close = difflib.get_close_matches(str(name).upper(), list(by_upper), n=n)
+    hint = f" Did you mean {', '.join(by_upper[c] for c in close)}?" if close else ""
+    raise ParameterError(f"unknown {what} {name!r}; known models are {', '.join(known)}.{hint}")
+
+
 ZERO_FRACTION = 0.05
 """Share of the unit interval that maps to 0 for a log-scaled register whose low is 0."""
 _ZERO_BELOW = 2.0 * ZERO_FRACTION - 1.0  # u below this maps to 0

@@ -34,6 +34,7 @@ from servogym.chips._paramfile import (
     FileSchema,
     ParamFile,
     assumption_lines,
+    check_format,
 )
 from servogym.chips._space import ParameterError
 from servogym.chips.parker6k._params import (
@@ -104,12 +105,7 @@ def _check_axis(chip: Parker6kModel, axis: Any, where: str = "") -> int:
 
 
 def _check_format(fmt: Any) -> str:
-    if isinstance(fmt, str) and fmt.lower() in FORMATS:
-        return fmt.lower()
-    close = difflib.get_close_matches(str(fmt).lower(), FORMATS, n=1)
-    hint = f" Did you mean {close[0]!r}?" if close else ""
-    listed = ", ".join(f"{f!r} ({FILE_EXTENSIONS[f]})" for f in FORMATS)
-    raise ParameterError(f"fmt must be one of {listed}; got fmt={fmt!r}.{hint}")
+    return check_format(fmt, FILE_EXTENSIONS, ignore_case=True)
 
 
 def _check_form(chip: Parker6kModel, fmt: str) -> None:

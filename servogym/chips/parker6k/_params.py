@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
+from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
 
 SPEC_VERSION = "parker6k-spec-1"
 """Version of ``docs/chips/parker6k.md`` the filter implements; written into exported files."""
@@ -81,16 +81,7 @@ def get_model(name: str | Parker6kModel) -> Parker6kModel:
             f"model must be a 6000-series model name, one of {', '.join(CHIP_MODELS)}; "
             f"got model={name!r} of type {type(name).__name__}."
         )
-    by_upper = {k.upper(): k for k in CHIP_MODELS}
-    key = by_upper.get(name.upper())
-    if key is not None:
-        return CHIP_MODELS[key]
-    close = difflib.get_close_matches(name.upper(), list(by_upper), n=2)
-    hint = f" Did you mean {', '.join(by_upper[c] for c in close)}?" if close else ""
-    raise ParameterError(
-        f"unknown Parker 6000-series model {name!r}; known models are "
-        f"{', '.join(CHIP_MODELS)}.{hint}"
-    )
+    return CHIP_MODELS[resolve_name(name, CHIP_MODELS, "Parker 6000-series model", n=2)]
 
 
 # --------------------------------------------------------------------------------------

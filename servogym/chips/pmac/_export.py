@@ -17,7 +17,6 @@ and ignores every other variable, comment and program buffer.
 
 from __future__ import annotations
 
-import difflib
 import re
 from collections.abc import Mapping
 from fractions import Fraction
@@ -33,6 +32,7 @@ from servogym.chips._paramfile import (
     FileSchema,
     ParamFile,
     assumption_lines,
+    check_format,
 )
 from servogym.chips._space import ParameterError
 from servogym.chips.pmac._params import (
@@ -384,12 +384,7 @@ def from_ivar(
 
 
 def _check_format(fmt: Any) -> str:
-    if fmt in FORMATS:
-        return fmt
-    close = difflib.get_close_matches(str(fmt), FORMATS, n=1)
-    hint = f" Did you mean {close[0]!r}?" if close else ""
-    listed = ", ".join(f"{f!r} ({FILE_EXTENSIONS[f]})" for f in FORMATS)
-    raise ParameterError(f"fmt must be one of {listed}; got fmt={fmt!r}.{hint}")
+    return check_format(fmt, FILE_EXTENSIONS)
 
 
 def export(params: PMACParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:

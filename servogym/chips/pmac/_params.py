@@ -9,7 +9,6 @@ clock I-variables ``I7000``..``I7002`` that set the servo period.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 from collections.abc import Mapping
 from fractions import Fraction
 from typing import Any, ClassVar
@@ -17,7 +16,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
+from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
 
 SPEC_VERSION = "pmac-spec-1"
 """Version of ``docs/chips/pmac.md`` the filter implements; written into exported files."""
@@ -94,15 +93,7 @@ def get_model(name: str) -> PMACChipModel:
     """Return the chip model called ``name`` (case-insensitive), or raise with close matches."""
     if isinstance(name, PMACChipModel):
         return name
-    by_upper = {m.upper(): m for m in CHIP_MODELS}
-    key = by_upper.get(str(name).upper())
-    if key is not None:
-        return CHIP_MODELS[key]
-    close = difflib.get_close_matches(str(name).upper(), list(by_upper), n=3)
-    hint = f" Did you mean {', '.join(by_upper[c] for c in close)}?" if close else ""
-    raise ParameterError(
-        f"unknown PMAC chip model {name!r}; known models are {', '.join(CHIP_MODELS)}.{hint}"
-    )
+    return CHIP_MODELS[resolve_name(name, CHIP_MODELS, "PMAC chip model")]
 
 
 # --------------------------------------------------------------------------------------

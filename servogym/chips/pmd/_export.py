@@ -33,6 +33,7 @@ from servogym.chips._paramfile import (
     FileSchema,
     ParamFile,
     assumption_lines,
+    check_format,
 )
 from servogym.chips._space import ParameterError
 from servogym.chips.pmd._params import (
@@ -878,12 +879,7 @@ def from_host_text(text: str, model: str | PMDChipModel | None = None) -> PMDPar
 
 
 def _check_format(fmt: Any) -> str:
-    if fmt in FORMATS:
-        return fmt
-    close = difflib.get_close_matches(str(fmt), FORMATS, n=1)
-    hint = f" Did you mean {close[0]!r}?" if close else ""
-    listed = ", ".join(f"{f!r} ({FILE_EXTENSIONS[f]})" for f in FORMATS)
-    raise ParameterError(f"fmt must be one of {listed}; got fmt={fmt!r}.{hint}")
+    return check_format(fmt, FILE_EXTENSIONS)
 
 
 def export(params: PMDParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:

@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
+from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
 
 SPEC_VERSION = "pmd-spec-1"
 """Version of ``docs/chips/pmd.md`` the filter implements; written into exported files."""
@@ -98,16 +98,7 @@ CHIP_MODELS: dict[str, PMDChipModel] = {
 
 def get_model(name: str) -> PMDChipModel:
     """Return the chip model called ``name`` (case-insensitive), or raise with close matches."""
-    import difflib
-
-    key = name.upper()
-    if key in CHIP_MODELS:
-        return CHIP_MODELS[key]
-    close = difflib.get_close_matches(key, list(CHIP_MODELS), n=3)
-    hint = f" Did you mean {', '.join(close)}?" if close else ""
-    raise ParameterError(
-        f"unknown PMD chip model {name!r}; known models are {', '.join(CHIP_MODELS)}.{hint}"
-    )
+    return CHIP_MODELS[resolve_name(name, CHIP_MODELS, "PMD chip model")]
 
 
 # --------------------------------------------------------------------------------------
