@@ -3,15 +3,20 @@
     .venv/bin/python experiments/bench_servo_loop.py [--plant rotary] [--repeats 7]
 
 Prints ticks per second (median of the repeats, with min..max) for:
-  (a) a compiled loop of bare mj_step on the same plant, no controller;
-  (b) the full closed loop (profile -> PMD filter -> amplifier -> mj_step -> encoder), one
-      compiled call per episode (servogym.sim.ServoLoop);
-  (c) the same closed loop as a plain Python loop (the Python reference filter, mj_step from
-      Python: servogym/sim/_pyloop.py), and (c2) a Python loop that calls the compiled filter;
+  (a) the accurate default closed loop (profile -> PMD filter -> amplifier with the chip's
+      loop latency -> RK4 substeps -> encoder), one compiled call per episode
+      (servogym.sim.ServoLoop with its defaults);
+  (b) the old tick: the same loop with one implicitfast mj_step per tick and no latency
+      (``integrator="euler"``, ``loop_latency="same_tick"``), what servogym ran before;
+  (b2) plain RK4 per tick: the same loop recomputing every stage in full (what MuJoCo's own
+      RK4 integrator does);
+  (r) bare reference integrator steps on the same plant, no controller: a compiled loop of
+      mj_step with MuJoCo's RK4 integrator, and (e) with its implicitfast integrator;
+  (c) the default closed loop as a plain Python loop (servogym/sim/_pyloop.py);
   (d) many short episodes on all cores (threads; the compiled loop releases the GIL), against
       the same episodes on one thread;
-and the ratios b/a, b/c, b/c2 and d(all cores)/d(1 core). Targets (issue 3, rotary plant):
-b/a >= 0.85, b/c >= 1.5, scaling >= 1.6 on 2 cores. Results: docs/performance.md.
+and the ratios a/b (target >= 0.5), a/r, b2/b, a/c and d(all cores)/d(1 core) (target >= 1.8 on
+2 cores). Results: docs/performance.md.
 """
 
 from __future__ import annotations
@@ -29,14 +34,14 @@ import mujoco
 import numpy as np
 from numba import njit
 
-from servogym.chips.pmd import PMDParams, move
-from servogym.chips.pmd._kernel import new_state, pmd_step
+from servogym.chips.pmd import PMDAssumptions, PMDParams, move
 from servogym.chips.pmd._reference import PMDReferenceFilter
 from servogym.plants import get_plant
 from servogym.sim import ServoLoop
 from servogym.sim._ffi import mj_step
+from servogym.sim._loop import INTEGRATORS
 from servogym.sim._pyloop import python_closed_loop
-from servogym.sim._runner import TRAVEL_MARGIN, current_loop_alpha
+from servogym.sim._runner import TRAVEL_MARGIN, current_loop_tau
 
 PARAMS = PMDParams(model="MC2100", kp=40, kd=400, ki=10, derivative_time=1, kout=8000)
 
@@ -95,58 +100,67 @@ def main() -> None:
     family = get_plant(args.plant)
     plant = family.build()
     loop = ServoLoop(plant, PARAMS)
+    old_plant = family.build()
+    old = ServoLoop(old_plant, PARAMS, PMDAssumptions(loop_latency="same_tick"),
+                    integrator="euler", substeps=1)  # fmt: skip
+    full_plant = family.build()
+    full = ServoLoop(full_plant, PARAMS)
+    full.full_stages = True  # every RK4 stage in full, as MuJoCo's RK4 integrator
     io = plant.io
     prof = profile_for(plant, args.ticks)
     n = prof.n_ticks
-    m, d = plant.model, plant.data
+    bare = {}
+    for name, integrator in (("rk4", mujoco.mjtIntegrator.mjINT_RK4),
+                             ("implicitfast", mujoco.mjtIntegrator.mjINT_IMPLICITFAST)):
+        bp = family.build(timestep_s=PARAMS.sample_time_s)
+        bp.model.opt.integrator = integrator
+        bare[name] = bp
 
     # warm up every compiled function (and the numba cache)
-    bare_steps(m._address, d._address, d.qpos, d.ctrl, io.qpos_adr, io.ctrl_index, 0.0, 10)
-    loop.run(prof)
+    for bp in bare.values():
+        bm, bd = bp.model, bp.data
+        bare_steps(bm._address, bd._address, bd.qpos, bd.ctrl, io.qpos_adr, io.ctrl_index, 0.0, 10)
+    for lp in (loop, old, full):
+        lp.run(prof)
 
-    def run_a():
-        plant.reset()
-        bare_steps(m._address, d._address, d.qpos, d.ctrl, io.qpos_adr, io.ctrl_index, 1e-3, n)
+    def run_bare(bp):
+        def run():
+            bp.reset()
+            bm, bd = bp.model, bp.data
+            bare_steps(bm._address, bd._address, bd.qpos, bd.ctrl, io.qpos_adr, io.ctrl_index,
+                       1e-3, n)  # fmt: skip
+        return run
 
-    def run_b():
-        r = loop.run(prof)
-        assert r.metrics.n_ticks == n, r.metrics
+    def run_loop(lp):
+        def run():
+            r = lp.run(prof)
+            assert r.metrics.n_ticks == n, r.metrics
+        return run
 
     pn = min(args.python_ticks, n)
     short = type(prof)(prof.position[:pn], prof.velocity[:pn], prof.acceleration[:pn], None, 0)
     span = io.travel_max - io.travel_min
     bounds = (io.travel_min + TRAVEL_MARGIN * span, io.travel_max - TRAVEL_MARGIN * span)
     max_err = min(int(span * io.counts_per_unit), 2**31 - 1)
-    alpha = current_loop_alpha(io.current_bandwidth_hz, PARAMS.sample_time_s)
+    m, d = plant.model, plant.data
 
     def run_c():
         plant.reset()
         origin = int(np.floor(d.qpos[io.qpos_adr] * io.counts_per_unit))
-        r = python_closed_loop(m, d, io, 1, *bounds, max_err, alpha, origin,
-                               PMDReferenceFilter(PARAMS), short.position, short.velocity,
-                               short.acceleration)  # fmt: skip
+        r = python_closed_loop(m, d, io, INTEGRATORS["rk4"], loop.substeps, loop.full_stages,
+                               loop.dt, loop.latency_s, current_loop_tau(io.current_bandwidth_hz),
+                               *bounds, max_err, origin, PMDReferenceFilter(PARAMS),
+                               short.position, short.velocity, short.acceleration)  # fmt: skip
         assert r[0] == pn
 
-    p_arr, a_arr = PARAMS.to_array(), loop._a
-
-    def run_c2():
-        plant.reset()
-        state = new_state()
-        origin = int(np.floor(d.qpos[io.qpos_adr] * io.counts_per_unit))
-        cpu, kt, amps, peak = io.counts_per_unit, io.torque_constant_nm_per_a, \
-            io.amp_amps_per_count, io.peak_current_a  # fmt: skip
-        for k in range(pn):
-            actual = ((math.floor(d.qpos[io.qpos_adr] * cpu) - origin + 2**31) % 2**32) - 2**31
-            c = pmd_step(state, p_arr, a_arr, short.position[k], actual, short.velocity[k],
-                         short.acceleration[k])  # fmt: skip
-            d.ctrl[io.ctrl_index] = kt * min(max(c * amps, -peak), peak)
-            mujoco.mj_step(m, d)
-
     results = {
-        "a_bare_mj_step": rate(n, timed(run_a, args.repeats)),
-        "b_closed_loop": rate(n, timed(run_b, args.repeats)),
+        "a_accurate_default": rate(n, timed(run_loop(loop), args.repeats)),
+        "b_old_tick": rate(n, timed(run_loop(old), args.repeats)),
+        "b2_rk4_full_stages": rate(n, timed(run_loop(full), args.repeats)),
+        "r_bare_mj_step_rk4": rate(n, timed(run_bare(bare["rk4"]), args.repeats)),
+        "e_bare_mj_step_implicitfast": rate(n, timed(run_bare(bare["implicitfast"]),
+                                                     args.repeats)),
         "c_python_loop": rate(pn, timed(run_c, max(3, args.repeats // 2))),
-        "c2_python_loop_compiled_filter": rate(pn, timed(run_c2, max(3, args.repeats // 2))),
     }
 
     # (d) many short episodes: per-thread plants and loops, built before timing.
@@ -175,18 +189,21 @@ def main() -> None:
 
     med = {k: v["median"] for k, v in results.items()}
     ratios = {
-        "b/a": med["b_closed_loop"] / med["a_bare_mj_step"],
-        "b/c": med["b_closed_loop"] / med["c_python_loop"],
-        "b/c2": med["b_closed_loop"] / med["c2_python_loop_compiled_filter"],
+        "a/b": med["a_accurate_default"] / med["b_old_tick"],
+        "a/r": med["a_accurate_default"] / med["r_bare_mj_step_rk4"],
+        "b2/b": med["b2_rk4_full_stages"] / med["b_old_tick"],
+        "b/e": med["b_old_tick"] / med["e_bare_mj_step_implicitfast"],
+        "a/c": med["a_accurate_default"] / med["c_python_loop"],
         "d_scaling": med[f"d_episodes_{args.workers}_threads"] / med["d_episodes_1_thread"],
     }
     cpu = platform.processor() or platform.machine()
-    print(f"plant {args.plant}, chip {PARAMS.model} at {PARAMS.sample_time_us} us, "
+    print(f"plant {args.plant}, chip {PARAMS.model} at {PARAMS.sample_time_us} us "
+          f"({loop.substeps} RK4 substep(s), latency {loop.latency_s * 1e6:g} us), "
           f"{args.repeats} repeats, {args.workers} workers, {cpu}")  # fmt: skip
     print(f"{'measurement':38s} {'ticks/s (median)':>18s} {'min .. max':>24s}")
     for k, v in results.items():
         print(f"{k:38s} {v['median']:18,.0f} {v['min']:11,.0f} .. {v['max']:<11,.0f}")
-    targets = {"b/a": 0.85, "b/c": 1.5, "d_scaling": 1.6}
+    targets = {"a/b": 0.5, "d_scaling": 1.8}
     for k, v in ratios.items():
         t = targets.get(k)
         verdict = "" if t is None else f"  (target >= {t}: {'met' if v >= t else 'NOT met'})"

@@ -147,10 +147,31 @@ class ChipFamily(abc.ABC):
         """Servo period of a parameter set (s)."""
         return float(params.sample_time_s)
 
+    def loop_latency_s(self, params: Any, assumptions: Any = None) -> float:
+        """Time from the encoder sample to the new command reaching the amplifier (s).
+
+        The family's ``loop_latency`` assumption: ``"same_tick"`` (0), ``"half_period"``,
+        ``"full_period"`` of the servo period, or the family's own reasoned default
+        (:meth:`native_latency_s`), never more than the period.
+        """
+        asm = assumptions if assumptions is not None else self.assumptions_type()
+        period = self.sample_time_s(params)
+        fraction = LATENCY_FRACTIONS.get(asm.loop_latency)
+        if fraction is not None:
+            return fraction * period
+        return min(self.native_latency_s(params, asm.loop_latency), period)
+
+    def native_latency_s(self, params: Any, choice: str) -> float:
+        """The latency (s) of a family-specific ``loop_latency`` choice (none by default)."""
+        raise ParameterError(f"loop_latency={choice!r} is not a latency of the {self.name} family")
+
     def motor_limit(self, params: Any) -> int:
         """Largest motor-command magnitude the set allows (counts of the 16-bit output)."""
         return int(params.motor_limit)
 
+
+LATENCY_FRACTIONS: dict[str, float] = {"same_tick": 0.0, "half_period": 0.5, "full_period": 1.0}
+"""``loop_latency`` choices every family offers, as fractions of the servo period."""
 
 FAMILY_CODES: dict[str, int] = {"pmd": 0, "pmac": 1, "parker6k": 2}
 """Codes the compiled servo loop dispatches on; one per family, never reused."""

@@ -30,7 +30,7 @@ import numpy as np
 DEFAULT_TIMESTEP_S = 250e-6
 """Physics timestep of a freshly built plant, in seconds (the runner usually overrides it)."""
 
-TIMESTEP_MIN_S = 1e-6
+TIMESTEP_MIN_S = 1e-8
 """Smallest legal physics timestep, in seconds."""
 
 TIMESTEP_MAX_S = 1e-3
@@ -267,12 +267,18 @@ class PlantFamily(abc.ABC):
         description: One paragraph saying what the plant is.
         params: The parameters, in a fixed order (the sampling order).
         joint_unit: Unit of the measured joint: ``"rad"`` or ``"m"``.
+        position_stages: Whether the servo loop's RK4 must recompute the position-dependent
+            quantities (mass matrix, kinematics, gravity torque) at every stage. ``False``
+            (the default) is exact only for plants whose forces do not depend on position
+            except through joint springs: a constant mass matrix and a constant gravity
+            force (tests/sim/test_convergence.py checks every family against the reference).
     """
 
     name: str
     description: str
     joint_unit: str
     params: tuple[PlantParam, ...]
+    position_stages: bool = False
 
     def __init__(self) -> None:
         self._by_name = {p.name: p for p in self.params}
@@ -422,9 +428,13 @@ class PlantFamily(abc.ABC):
         spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
         spec.option.gravity = [0.0, 0.0, -GRAVITY_MPS2]
         # No contacts (the geoms are visual only). No auto-reset: MuJoCo would silently reset
-        # a diverged simulation to qpos0; the runner must see the NaN and stop instead.
+        # a diverged simulation to qpos0; the runner must see the NaN and stop instead. No
+        # refsafe: the constraints' time constants are physical values that must not change
+        # with the integration step (FRICTION_SOLREF), or no integration would converge.
         spec.option.disableflags |= (
-            mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_AUTORESET
+            mujoco.mjtDisableBit.mjDSBL_CONTACT
+            | mujoco.mjtDisableBit.mjDSBL_AUTORESET
+            | mujoco.mjtDisableBit.mjDSBL_REFSAFE
         )
         self._skeleton(spec)
         for joint in spec.joints:
@@ -482,13 +492,16 @@ class PlantFamily(abc.ABC):
 
 
 LIMIT_SOLREF = (0.002, 1.0)
-"""``solref`` of the travel-limit constraint: time constant (s) and damping ratio. MuJoCo
-raises the time constant to twice the timestep when it is smaller (``refsafe``)."""
+"""``solref`` of the travel-limit constraint: time constant (s) and damping ratio, fixed
+(``refsafe`` is off, so it does not change with the timestep)."""
 
 
-FRICTION_SOLREF = (1e-4, 1.0)
-"""``solref`` of the Coulomb-friction (``frictionloss``) constraint: as stiff as MuJoCo allows
-(``refsafe`` raises the time constant to twice the timestep)."""
+FRICTION_SOLREF = (320e-6, 1.0)
+"""``solref`` of the Coulomb-friction (``frictionloss``) constraint: time constant (s) and
+damping ratio. The regularised friction is a fast velocity mode of rate about
+``2 / time constant``; 320 us is twice the longest substep of the default integration
+(``servogym.sim.MAX_SUBSTEP_S``), what MuJoCo's ``refsafe`` would impose there, and is fixed
+so that every integration step size simulates the same friction."""
 
 FRICTION_SOLIMP = (0.999, 0.9999, 0.001, 0.5, 2.0)
 """``solimp`` of the Coulomb-friction constraint. With MuJoCo's default (0.9, 0.95, ...) the

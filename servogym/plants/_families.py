@@ -482,6 +482,7 @@ class ArmFamily(PlantFamily):
 
     name = "arm"
     joint_unit = "rad"
+    position_stages = True  # the gravity torque changes with the angle
     description = (
         "A link with a payload at its tip, driven through a gearbox and rotating in a "
         "vertical plane about a horizontal axis. One hinge: the link angle in rad, 0 = "

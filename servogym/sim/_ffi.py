@@ -32,3 +32,13 @@ llvm.load_library_permanently(libmujoco_path())
 
 # void mj_step(const mjModel* m, mjData* d); pointers passed as machine-word integers.
 mj_step = types.ExternalFunction("mj_step", types.void(types.intp, types.intp))
+
+# void mj_forward(const mjModel* m, mjData* d): the accelerations of the current state.
+mj_forward = types.ExternalFunction("mj_forward", types.void(types.intp, types.intp))
+
+# void mj_forwardSkip(const mjModel* m, mjData* d, int skipstage, int skipsensor): the same,
+# reusing the stages before ``skipstage`` (mjSTAGE_POS = 1: keep the position-dependent
+# quantities of the last full mj_forward).
+mj_forwardSkip = types.ExternalFunction(
+    "mj_forwardSkip", types.void(types.intp, types.intp, types.intc, types.intc)
+)

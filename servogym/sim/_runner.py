@@ -9,11 +9,24 @@ from typing import Any
 import numpy as np
 
 from servogym.chips._family import family_of
-from servogym.sim._loop import REASONS, closed_loop
+from servogym.sim._loop import INTEGRATORS, REASONS, WORK_EXTRA, closed_loop
 from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics, compute_metrics
 
 TRAVEL_MARGIN = 0.01
 """Fraction of the travel span, inside each hard stop, whose crossing counts as divergence."""
+
+MAX_SUBSTEP_S = 160e-6
+"""Longest RK4 substep of the default integration (s): a servo period T is integrated in
+``ceil(T / MAX_SUBSTEP_S)`` equal substeps (docs/simulation.md, "Integration")."""
+
+REFERENCE_SUBSTEPS = 32
+"""Substeps per servo period of the fine reference integration (RK4), the most of which the
+default must agree with (``servogym check``, tests/sim/test_convergence.py)."""
+
+
+def default_substeps(dt_s: float) -> int:
+    """Substeps per servo period of the default integration: ``ceil(dt_s / MAX_SUBSTEP_S)``."""
+    return max(1, math.ceil(dt_s / MAX_SUBSTEP_S - 1e-9))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,24 +58,31 @@ class EpisodeResult:
     traces: Traces | None = None
 
 
-def current_loop_alpha(bandwidth_hz: float, dt_s: float) -> float:
-    """Update factor of the first-order current loop per tick (1.0 = ideal)."""
+def current_loop_tau(bandwidth_hz: float) -> float:
+    """Time constant (s) of the first-order current loop of a bandwidth; 0 = ideal."""
     if bandwidth_hz <= 0:
-        return 1.0
-    return 1.0 - math.exp(-2.0 * math.pi * bandwidth_hz * dt_s)
+        return 0.0
+    return 1.0 / (2.0 * math.pi * bandwidth_hz)
 
 
 class ServoLoop:
     """A chip axis closed around a plant; :meth:`run` runs one episode in compiled code.
 
-    The MuJoCo timestep is set to the chip's servo period divided by ``substeps``. The plant
-    is edited in place between episodes (``plant.set_params``); nothing is recompiled.
+    Between two servo ticks the plant is integrated with the motor current held by the
+    amplifier (the previous command's until the loop latency has passed, then the new one's,
+    through the current loop's lag), in ``substeps`` RK4 substeps (docs/simulation.md). The
+    plant is edited in place between episodes (``plant.set_params``); nothing is recompiled.
 
     Args:
-        plant: A built :class:`servogym.plants.Plant`.
+        plant: A built :class:`servogym.plants.Plant` (hinge and slide joints only).
         params: The chip's parameter set (e.g. :class:`servogym.chips.pmd.PMDParams`).
-        assumptions: The chip's assumption switches; ``None`` for the defaults.
-        substeps: mj_step calls per servo tick (>= 1).
+        assumptions: The chip's assumption switches; ``None`` for the defaults. The loop
+            latency is one of them (``loop_latency``).
+        integrator: ``"rk4"`` (default) or ``"euler"`` (one ``mj_step`` of the plant's
+            implicitfast integrator per substep: servogym's first tick, half a substep ahead
+            of the continuous plant; kept for comparison).
+        substeps: Integration substeps per servo tick (>= 1); ``None``:
+            :func:`default_substeps` of the chip's servo period (``"rk4"``) or 1 (``"euler"``).
         max_error_counts: Divergence bound on the position error (counts). ``None``: the
             plant's whole travel in counts.
         settle_band_counts: Band for the settling time (counts). ``None``: 0.2 % of the
@@ -75,21 +95,38 @@ class ServoLoop:
         params: Any,
         assumptions: Any = None,
         *,
-        substeps: int = 1,
+        integrator: str = "rk4",
+        substeps: int | None = None,
         max_error_counts: int | None = None,
         settle_band_counts: float | None = None,
     ) -> None:
-        if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+        if integrator not in INTEGRATORS:
+            raise ValueError(
+                f"integrator must be one of {', '.join(map(repr, INTEGRATORS))}; "
+                f"got integrator={integrator!r}"
+            )
+        if substeps is not None and (
+            isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1
+        ):
             raise ValueError(f"substeps must be an integer >= 1; got substeps={substeps!r}")
+        model = plant.model
+        if model.nq != model.nv:
+            raise ValueError(
+                "the servo loop integrates hinge and slide joints only (nq == nv); "
+                f"got nq={model.nq}, nv={model.nv} for plant {plant.family.name!r}"
+            )
         self.plant = plant
-        self.substeps = substeps
+        self.integrator = integrator
+        self.full_stages = bool(plant.family.position_stages)
+        self._substeps = substeps
         self.max_error_counts = max_error_counts
         self.settle_band_counts = settle_band_counts
         self.assumptions = assumptions
+        self._work = np.zeros(4 * model.nv + WORK_EXTRA)
         self.set_params(params)
         self._buffers: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._state = self.chip.new_state()
-        self._amp = np.zeros(1)
+        self._amp = np.zeros(2)
         self._origin = 0
 
     def set_params(self, params: Any) -> None:
@@ -105,6 +142,13 @@ class ServoLoop:
         self._p, self._a = self.chip.kernel_arrays(params, self.assumptions)
         self.params = params
         self.dt = self.chip.sample_time_s(params)
+        self.latency_s = self.chip.loop_latency_s(params, self.assumptions)
+        if self._substeps is not None:
+            self.substeps = self._substeps
+        elif self.integrator == "rk4":
+            self.substeps = default_substeps(self.dt)
+        else:
+            self.substeps = 1
         self.plant.set_timestep(self.dt / self.substeps)
 
     def _buffers_for(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -141,7 +185,7 @@ class ServoLoop:
         if reset:
             self.plant.reset()
             self._state[:] = 0
-            self._amp[0] = 0.0
+            self._amp[:] = 0.0
             start = int(profile.start if start_counts is None else start_counts)
             q0 = self.plant.data.qpos[io.qpos_adr]
             self._origin = int(np.floor(q0 * io.counts_per_unit)) - start
@@ -161,14 +205,15 @@ class ServoLoop:
         out_actual, out_command, out_current = self._buffers_for(n)
         m, d = self.plant.model, self.plant.data
         n_run, reason = closed_loop(
-            m._address, d._address, d.qpos, d.qvel, d.ctrl,
-            io.qpos_adr, io.qvel_adr, io.ctrl_index, self.substeps,
+            m._address, d._address, d.qpos, d.qvel, d.qacc, d.qacc_warmstart, d.ctrl,
+            io.qpos_adr, io.qvel_adr, io.ctrl_index, INTEGRATORS[self.integrator],
+            self.substeps, self.full_stages, float(self.dt), float(self.latency_s),
+            current_loop_tau(io.current_bandwidth_hz),
             float(io.counts_per_unit), float(lo), float(hi), int(max_err),
             float(io.amp_amps_per_count), float(io.peak_current_a),
             float(io.torque_constant_nm_per_a),
-            current_loop_alpha(io.current_bandwidth_hz, self.dt),
             self._origin, self._amp, self.chip.code, self._state, self._p, self._a,
-            pos, vel, acc, out_actual, out_command, out_current,
+            pos, vel, acc, out_actual, out_command, out_current, self._work,
         )  # fmt: skip
         metrics = self._metrics(pos, start, out_actual, out_command, n_run, reason)
         tr = None

@@ -131,8 +131,10 @@ class Scenario:
         moves: Evaluation moves, run one after the other without reset; ``()`` uses the
             plant family's :data:`DEFAULT_MOVES`.
         weights: Cost weights.
-        substeps: mj_step calls per servo tick.
-        assumptions: The chip's assumption switches (``None``: defaults).
+        integrator: ``"rk4"`` (default) or ``"euler"`` (see :class:`ServoLoop`).
+        substeps: Integration substeps per servo tick; ``None``: the integrator's default.
+        assumptions: The chip's assumption switches (``None``: defaults), the loop
+            latency among them.
     """
 
     chip_model: str
@@ -142,7 +144,8 @@ class Scenario:
     sample_scale: float = 1.0
     moves: tuple[MoveSpec, ...] = ()
     weights: CostWeights = CostWeights()
-    substeps: int = 1
+    integrator: str = "rk4"
+    substeps: int | None = None
     assumptions: Any = None
 
     def __post_init__(self) -> None:
@@ -224,6 +227,7 @@ class Evaluator:
             self.plant,
             scenario.default_params(),
             scenario.assumptions,
+            integrator=scenario.integrator,
             substeps=scenario.substeps,
         )
         self._profiles: dict[tuple, list] = {}

@@ -17,7 +17,8 @@ from servogym.plants import PLANTS, get_plant
 from servogym.sim import METRIC_NAMES, ServoLoop
 from servogym.sim._metrics import compute_metrics
 from servogym.sim._pyloop import python_closed_loop
-from servogym.sim._runner import TRAVEL_MARGIN, current_loop_alpha
+from servogym.sim._loop import INTEGRATORS
+from servogym.sim._runner import TRAVEL_MARGIN, current_loop_tau
 
 
 def ramp(distance: int, move_ticks: int, n_ticks: int) -> SimpleNamespace:
@@ -41,13 +42,14 @@ def python_traces(loop: ServoLoop, profile) -> tuple[int, int, list, list, list]
     io = plant.io
     span = io.travel_max - io.travel_min
     return python_closed_loop(
-        plant.model, plant.data, io, loop.substeps,
+        plant.model, plant.data, io, INTEGRATORS[loop.integrator], loop.substeps,
+        loop.full_stages, loop.dt,
+        loop.latency_s, current_loop_tau(io.current_bandwidth_hz),
         io.travel_min + TRAVEL_MARGIN * span, io.travel_max - TRAVEL_MARGIN * span,
         min(int(span * io.counts_per_unit), 2**31 - 1),
-        current_loop_alpha(io.current_bandwidth_hz, loop.dt),
         int(np.floor(plant.data.qpos[io.qpos_adr] * io.counts_per_unit)) - profile.start,
-        loop.chip.reference_filter(loop.params), profile.position, profile.velocity,
-        profile.acceleration,
+        loop.chip.reference_filter(loop.params, loop.assumptions), profile.position,
+        profile.velocity, profile.acceleration,
     )  # fmt: skip
 
 
@@ -66,17 +68,35 @@ TWIN_PARAMS = {
 }
 
 
-@pytest.mark.parametrize("chip", sorted(TWIN_PARAMS))
+def latency_settings(chip: str) -> list[str]:
+    """Every ``loop_latency`` choice of a family (its default first)."""
+    family = all_models()[TWIN_PARAMS[chip][0]]
+    return list(family.assumptions_type.CHOICES["loop_latency"])
+
+
+TWIN_CASES = [
+    (chip, latency, integrator, substeps)
+    for chip in sorted(TWIN_PARAMS)
+    for latency in latency_settings(chip)
+    for integrator, substeps in (("rk4", None), ("rk4", 3), ("euler", 1), ("euler", 2))
+]
+
+
+@pytest.mark.parametrize(("chip", "latency", "integrator", "substeps"), TWIN_CASES)
 @pytest.mark.parametrize("plant_name", list(PLANTS))
-@pytest.mark.parametrize("substeps", [1, 3])
-def test_compiled_loop_equals_python_loop(chip, plant_name, substeps):
+@pytest.mark.parametrize("bandwidth_hz", [0.0, 2000.0])
+def test_compiled_loop_equals_python_loop(
+    chip, latency, integrator, substeps, plant_name, bandwidth_hz
+):
     family = get_plant(plant_name)
     values = family.sample(np.random.default_rng(7))
-    values["current_bandwidth_hz"] = 2000.0  # exercise the current-loop lag too
+    values["current_bandwidth_hz"] = bandwidth_hz  # 2000: exercise the current-loop lag
     plant = family.build(values)
     model, gains = TWIN_PARAMS[chip]
-    params = all_models()[model].make_params(model, gains)
-    loop = ServoLoop(plant, params, substeps=substeps)
+    chip_family = all_models()[model]
+    params = chip_family.make_params(model, gains)
+    asm = chip_family.assumptions_type(loop_latency=latency)
+    loop = ServoLoop(plant, params, asm, integrator=integrator, substeps=substeps)
     profile = small_move(plant)
     result = loop.run(profile, traces=True)
     n_run, _reason, actual, command, current = python_traces(loop, profile)
@@ -139,10 +159,11 @@ def test_every_chip_model_runs_with_every_plant(model, plant_name):
     plant = get_plant(plant_name).build()
     family = all_models()[model]
     params = family.make_params(model)
-    r = ServoLoop(plant, params).run(small_move(plant, 300))
+    loop = ServoLoop(plant, params)
+    r = loop.run(small_move(plant, 300))
     assert r.metrics.n_ticks >= 1
     assert all(math.isfinite(getattr(r.metrics, n)) for n in METRIC_NAMES)
-    assert plant.model.opt.timestep == pytest.approx(family.sample_time_s(params))
+    assert plant.model.opt.timestep == pytest.approx(family.sample_time_s(params) / loop.substeps)
 
 
 WILD = [

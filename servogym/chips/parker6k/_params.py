@@ -98,6 +98,7 @@ ASSUMPTION_CHOICES: dict[str, tuple[str, ...]] = {
     "rounding": ("floor", "trunc"),  # PK-A6
     "smper_compare": ("greater", "greater_equal"),  # PK-A7
     "smper_zero": ("off", "limit"),  # PK-A8
+    "loop_latency": ("full_period", "same_tick", "half_period"),  # PK-A9
 }
 
 ASSUMPTION_IDS: dict[str, str] = {
@@ -109,7 +110,7 @@ ASSUMPTION_IDS: dict[str, str] = {
 class Parker6kAssumptions(AssumptionSet):
     """Switches for every behaviour of the 6000-series PIV&F filter that no source settles.
 
-    Each field is one assumption of ``docs/chips/parker6k.md`` (PK-A1 ... PK-A8); the default
+    Each field is one assumption of ``docs/chips/parker6k.md`` (PK-A1 ... PK-A9); the default
     is the first choice listed there. A trace from real hardware can decide between them.
 
     Attributes:
@@ -134,6 +135,9 @@ class Parker6kAssumptions(AssumptionSet):
             ``"greater_equal"`` (|error| >= SMPER).
         smper_zero: PK-A8. ``"off"``: SMPER0 turns the error check off; ``"limit"``: SMPER0
             is a limit of 0 counts like any other.
+        loop_latency: PK-A9. Time from the encoder sample to the new command reaching the
+            drive (the old command holds until then): ``"full_period"`` (the DSP writes the
+            output at the next servo sample), ``"same_tick"`` or ``"half_period"``.
     """
 
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = ASSUMPTION_CHOICES
@@ -147,6 +151,7 @@ class Parker6kAssumptions(AssumptionSet):
     rounding: str = "floor"
     smper_compare: str = "greater"
     smper_zero: str = "off"
+    loop_latency: str = "full_period"
 
 
 A_INDEX: dict[str, int] = Parker6kAssumptions.index()

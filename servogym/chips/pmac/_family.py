@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from types import MappingProxyType
+from typing import Any
 
 from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
 from servogym.chips.pmac import _export, _kernel, _profile
@@ -30,6 +31,12 @@ class PMACFamily(ChipFamily):
     error_trip_off = MappingProxyType({"fatal_following_error_limit": 0})  # Ixx11 = 0 disables it
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
+
+    def native_latency_s(self, params: Any, choice: str) -> float:
+        """PMAC-A14 ``"phase_edge"``: one phase period, servo period / (I7002 + 1)."""
+        if choice != "phase_edge":
+            return super().native_latency_s(params, choice)
+        return params.servo_period_s / (params.servo_clock_divider + 1)
 
     def profile(self, move: Move, sample_time_s: float) -> _profile.Profile:
         return _profile.move(

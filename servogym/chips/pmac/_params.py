@@ -115,6 +115,7 @@ ASSUMPTION_CHOICES: dict[str, tuple[str, ...]] = {
     "trip_action": ("kill", "kill_bias", "flag_only"),  # PMAC-A11
     "trip_compare": ("greater", "greater_equal"),  # PMAC-A12
     "first_cycle": ("actual", "commanded"),  # PMAC-A13
+    "loop_latency": ("phase_edge", "same_tick", "half_period", "full_period"),  # PMAC-A14
 }
 
 ASSUMPTION_IDS: dict[str, str] = {
@@ -126,7 +127,7 @@ ASSUMPTION_IDS: dict[str, str] = {
 class PMACAssumptions(AssumptionSet):
     """Switches for every behaviour of the Turbo PMAC filter that no source settles.
 
-    Each field is one assumption of ``docs/chips/pmac.md`` (PMAC-A1 ... PMAC-A13); the default
+    Each field is one assumption of ``docs/chips/pmac.md`` (PMAC-A1 ... PMAC-A14); the default
     is the first choice listed there. A trace from real hardware can decide between them.
 
     Attributes:
@@ -164,6 +165,11 @@ class PMACAssumptions(AssumptionSet):
             reset: ``"actual"`` (the loop closes with the commanded position at the actual
             one) or ``"commanded"`` (the commanded position itself: no commanded velocity in
             the first cycle).
+        loop_latency: PMAC-A14. Time from the encoder sample to the new command reaching the
+            amplifier (the old command holds until then): ``"phase_edge"``, the next phase
+            clock edge, one phase period = servo period / (I7002 + 1) (110.7 us at the
+            factory clocks); ``"same_tick"``; ``"half_period"``; ``"full_period"`` (of the
+            filter's period).
     """
 
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = ASSUMPTION_CHOICES
@@ -182,6 +188,7 @@ class PMACAssumptions(AssumptionSet):
     trip_action: str = "kill"
     trip_compare: str = "greater"
     first_cycle: str = "actual"
+    loop_latency: str = "phase_edge"
 
 
 A_INDEX: dict[str, int] = PMACAssumptions.index()

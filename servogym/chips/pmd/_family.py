@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from types import MappingProxyType
+from typing import Any
 
 from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
 from servogym.chips.pmd import _export, _kernel, _profile
@@ -27,6 +28,12 @@ class PMDFamily(ChipFamily):
     )  # PMD-A10: the largest limit
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
+
+    def native_latency_s(self, params: Any, choice: str) -> float:
+        """PMD-A13 ``"axis_slot"``: one per-axis slot, the model's minimum sample time."""
+        if choice != "axis_slot":
+            return super().native_latency_s(params, choice)
+        return CHIP_MODELS[params.model].min_sample_time_us * 1e-6
 
     def profile(self, move: Move, sample_time_s: float) -> _profile.Profile:
         return _profile.move(

@@ -119,6 +119,7 @@ ASSUMPTION_CHOICES: dict[str, tuple[str, ...]] = {
     "motion_error": ("stop", "flag_only"),  # PMD-A10
     "error_limit_compare": ("greater", "greater_equal"),  # PMD-A11
     "biquad_format": ("q14", "q15"),  # PMD-A12
+    "loop_latency": ("axis_slot", "same_tick", "half_period", "full_period"),  # PMD-A13
 }
 
 ASSUMPTION_IDS: dict[str, str] = {
@@ -130,7 +131,7 @@ ASSUMPTION_IDS: dict[str, str] = {
 class PMDAssumptions(AssumptionSet):
     """Switches for every behaviour of the PMD filter that no source settles.
 
-    Each field is one assumption of ``docs/chips/pmd.md`` (PMD-A1 ... PMD-A12); the default is
+    Each field is one assumption of ``docs/chips/pmd.md`` (PMD-A1 ... PMD-A13); the default is
     the first choice listed there. A trace from real hardware can decide between them.
 
     Attributes:
@@ -160,6 +161,11 @@ class PMDAssumptions(AssumptionSet):
             ``"greater_equal"`` (|E| >= limit).
         biquad_format: PMD-A12 (MC58000 only). Fractional bits of the biquad coefficients
             B0..A2 and of the stage gain K: ``"q14"`` or ``"q15"``.
+        loop_latency: PMD-A13. Time from the encoder sample to the new motor command
+            reaching the amplifier (the old command holds until then): ``"axis_slot"``, one
+            per-axis time slot (the model's minimum sample time, at most the period: a full
+            period for one axis at the minimum cycle); ``"same_tick"`` (no latency);
+            ``"half_period"``; ``"full_period"``.
     """
 
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = ASSUMPTION_CHOICES
@@ -177,6 +183,7 @@ class PMDAssumptions(AssumptionSet):
     motion_error: str = "stop"
     error_limit_compare: str = "greater"
     biquad_format: str = "q14"
+    loop_latency: str = "axis_slot"
 
 
 # Index of each assumption in PMDAssumptions.to_array(), for the kernel.
