@@ -1,7 +1,16 @@
 """The closed-loop servo runner (a compiled hot loop around mj_step), metrics and the cost."""
 
+from servogym.sim._check import CaseResult, CheckLimits, CheckReport, check_params
+from servogym.sim._margins import Margins
 from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics
-from servogym.sim._runner import EpisodeResult, ServoLoop, Traces
+from servogym.sim._runner import (
+    MAX_SUBSTEP_S,
+    REFERENCE_SUBSTEPS,
+    EpisodeResult,
+    ServoLoop,
+    Traces,
+    default_substeps,
+)
 from servogym.sim._scenario import (
     COST_CAP,
     DEFAULT_MOVES,
@@ -17,6 +26,14 @@ from servogym.sim._scenario import (
 
 __all__ = [
     "COST_CAP",
+    "MAX_SUBSTEP_S",
+    "REFERENCE_SUBSTEPS",
+    "CaseResult",
+    "CheckLimits",
+    "CheckReport",
+    "Margins",
+    "check_params",
+    "default_substeps",
     "DEFAULT_MOVES",
     "DIVERGENCE_PENALTY",
     "METRIC_NAMES",
