@@ -80,6 +80,9 @@ class ChipFamily(abc.ABC):
             in capitals.
         error_trip_off: Register values that switch off the chip's own following-error trip
             (for identification experiments that must not be cut short by it).
+        response_function: ``(params, assumptions, z) -> complex array``: the linear part of
+            the filter's feedback path (:meth:`filter_response`), in the family's
+            ``_response`` module.
     """
 
     name: str
@@ -93,6 +96,7 @@ class ChipFamily(abc.ABC):
     file_extensions: Mapping[str, str] = {"json": ".json"}
     env_name: str = ""
     error_trip_off: Mapping[str, int] = {}
+    response_function: Any = None
 
     @staticmethod
     @abc.abstractmethod
@@ -117,15 +121,72 @@ class ChipFamily(abc.ABC):
         """The family's assumption switches at their defaults."""
         return self.assumptions_type()
 
-    def kernel_arrays(self, params: Any, assumptions: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Register array and assumption array for the compiled loop."""
+    def _assumptions(self, assumptions: Any) -> Any:
+        """``assumptions``, or the defaults for ``None``; a wrong type is a TypeError."""
         asm = assumptions if assumptions is not None else self.assumptions_type()
         if not isinstance(asm, self.assumptions_type):
             raise TypeError(
                 f"assumptions for a {self.name} chip must be {self.assumptions_type.__name__}; "
                 f"got {type(asm).__name__}"
             )
-        return params.to_array(), asm.to_array()
+        return asm
+
+    def kernel_arrays(self, params: Any, assumptions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Register array and assumption array for the compiled loop."""
+        return params.to_array(), self._assumptions(assumptions).to_array()
+
+    def filter_response(self, params: Any, assumptions: Any, z: Any) -> np.ndarray:
+        """Transfer function of the linear part of the filter's feedback path, at ``z``.
+
+        ``C(z)`` is the motor command (counts of the signed 16-bit command the servo loop
+        applies, 32768 = 100 %) per count of position error ``E = commanded - actual``,
+        with the commanded position held fixed: the loop's transfer from ``-actual``. So a
+        term on the encoder's velocity (PMAC Ixx31, Parker SGV) enters with the sign that
+        makes it damping. Feed-forward (it acts on the commanded profile), bias and offset,
+        saturation, limits, deadband and rounding are left out; every gain scaling and
+        every assumption switch that changes the linear response is in. The loop latency
+        is not (it belongs to the loop: ``loop_latency_s``). Each family's spec states
+        its formula ("Linear response (for margins)").
+
+        Args:
+            params: A parameter set of this family.
+            assumptions: The family's assumption switches; ``None`` for the defaults.
+            z: Points of the z-plane (any shape), ``z = exp(1j * omega * T)`` on the unit
+                circle, with ``T`` the filter period :meth:`sample_time_s` (PMAC: the
+                servo period times Ixx60 + 1).
+
+        Returns:
+            Complex array of ``z``'s shape. At ``z = 1`` with an integral gain the
+            response is not finite.
+        """
+        if not isinstance(params, self.params_type):
+            raise TypeError(
+                f"params for a {self.name} chip must be {self.params_type.__name__}; "
+                f"got {type(params).__name__}"
+            )
+        asm = self._assumptions(assumptions)
+        zz = np.asarray(z, dtype=complex)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = np.asarray(self.response_function(params, asm, zz), dtype=complex)
+        return np.broadcast_to(out, zz.shape).copy()
+
+    def filter_frequency_response(
+        self, params: Any, assumptions: Any, freqs_hz: Any
+    ) -> np.ndarray:
+        """:meth:`filter_response` at ``z = exp(2j pi f T)``, ``T`` = :meth:`sample_time_s`.
+
+        Args:
+            params: A parameter set of this family.
+            assumptions: The family's assumption switches; ``None`` for the defaults.
+            freqs_hz: Frequencies (Hz), any shape.
+
+        Returns:
+            Complex array of ``freqs_hz``'s shape: motor-command counts per count of error.
+        """
+        f = np.asarray(freqs_hz, dtype=float)
+        return self.filter_response(
+            params, assumptions, np.exp(2j * np.pi * f * self.sample_time_s(params))
+        )
 
     def reference_filter(self, params: Any, assumptions: Any = None) -> Any:
         """The family's plain-Python reference filter (``step``, ``motion_error``)."""

@@ -10,7 +10,7 @@ import numpy as np
 
 from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
 from servogym.chips._space import ParameterError
-from servogym.chips.parker6k import _export, _kernel, _profile
+from servogym.chips.parker6k import _export, _kernel, _profile, _response
 from servogym.chips.parker6k._params import (
     CHIP_MODELS,
     FIELDS,
@@ -38,6 +38,7 @@ class Parker6kFamily(ChipFamily):
     error_trip_off = MappingProxyType({"smper": 0})  # PK-A8: SMPER0 disables the check
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
+    response_function = staticmethod(_response.filter_response)
 
     def profile(self, move: Move, sample_time_s: float) -> _profile.Parker6kProfile:
         ssfr = _profile.ssfr_of(sample_time_s)

@@ -6,7 +6,7 @@ from types import MappingProxyType
 from typing import Any
 
 from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
-from servogym.chips.pmac import _export, _kernel, _profile
+from servogym.chips.pmac import _export, _kernel, _profile, _response
 from servogym.chips.pmac._params import (
     CHIP_MODELS,
     PMACAssumptions,
@@ -31,6 +31,7 @@ class PMACFamily(ChipFamily):
     error_trip_off = MappingProxyType({"fatal_following_error_limit": 0})  # Ixx11 = 0 disables it
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
+    response_function = staticmethod(_response.filter_response)
 
     def native_latency_s(self, params: Any, choice: str) -> float:
         """PMAC-A14 ``"phase_edge"``: one phase period, servo period / (I7002 + 1)."""

@@ -32,6 +32,7 @@ import numpy as np
 from servogym.chips._space import ParameterError
 from servogym.chips.pmac._params import (
     COEFFICIENT_FIELDS,
+    PMACAssumptions,
     PMACParams,
     coefficient_raw,
     parameter_space,
@@ -396,30 +397,31 @@ def notch_response(
 
 
 def controller_response(
-    params: PMACParams, freqs_hz: Sequence[float] | np.ndarray | None = None
+    params: PMACParams,
+    freqs_hz: Sequence[float] | np.ndarray | None = None,
+    assumptions: PMACAssumptions | None = None,
 ) -> FrequencyResponse:
     """The whole linear filter from following error to DAC value, at rest (CV = 0).
 
     ``C(z) = 2^-19 Ixx30 F(z) [Ixx08 (1 + Ixx33 2^-23 z^-1 / (1 - z^-1))
     + Ixx31 Ixx09 2^-7 (1 - z^-1)]``: the manual's PID equation with the commanded position
-    held (so the actual velocity is minus the error's difference), in DAC bits per count.
+    held (so the actual velocity is minus the error's difference), in DAC bits per count
+    (``PMAC.filter_response``; under PMAC-A2 ``current`` the integral has no ``z^-1``).
     Limits, deadband, big-step limit and rounding are left out.
 
     Args:
         params: The parameter set.
         freqs_hz: Frequencies, Hz; default 2000 log-spaced from 1 Hz to half the sample rate.
+        assumptions: The assumption switches; default the defaults.
     """
+    from servogym.chips.pmac._family import PMAC
+
     if not isinstance(params, PMACParams):
         raise ParameterError(f"params must be a PMACParams; got {type(params).__name__}.")
-    f_resp = notch_response(params, freqs_hz)
-    zi = np.exp(-2j * np.pi * f_resp.freqs_hz * params.sample_time_s)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        integral = params.integral_gain * 2.0**-23 * zi / (1 - zi)
-    pid = params.position_loop_scale * (1 + integral) + (
-        params.derivative_gain * params.velocity_loop_scale * 2.0**-7 * (1 - zi)
+    f = _freqs(freqs_hz, params.sample_time_s)
+    return FrequencyResponse(
+        f, PMAC.filter_frequency_response(params, assumptions, f), "DAC bits/count"
     )
-    gain = 2.0**-19 * params.proportional_gain
-    return FrequencyResponse(f_resp.freqs_hz, gain * f_resp.response * pid, "DAC bits/count")
 
 
 def plot_frequency_response(

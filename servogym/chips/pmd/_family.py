@@ -6,7 +6,7 @@ from types import MappingProxyType
 from typing import Any
 
 from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
-from servogym.chips.pmd import _export, _kernel, _profile
+from servogym.chips.pmd import _export, _kernel, _profile, _response
 from servogym.chips.pmd._params import CHIP_MODELS, PMDAssumptions, PMDParams, parameter_space
 from servogym.chips.pmd._reference import PMDReferenceFilter
 
@@ -28,6 +28,7 @@ class PMDFamily(ChipFamily):
     )  # PMD-A10: the largest limit
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
+    response_function = staticmethod(_response.filter_response)
 
     def native_latency_s(self, params: Any, choice: str) -> float:
         """PMD-A13 ``"axis_slot"``: one per-axis slot, the model's minimum sample time."""
