@@ -326,15 +326,24 @@ def check_candidates(result: StudyResult, config: TuneConfig) -> tuple[StudyResu
             key=lambda t: (not is_feasible(t), t.values[0]),
         )
         candidates += ranked[: config.check_candidates - 1]
+    limits = config.check_limits()
     first = None
     checked = []
-    for trial in candidates:
+    for i, trial in enumerate(candidates):
+        outcome = trial.user_attrs.get("outcome", {})
+        gm, pm = outcome.get("gain_margin_db"), outcome.get("phase_margin_deg")
+        short = (gm is not None and gm < limits.min_gain_margin_db) or (
+            pm is not None and pm < limits.min_phase_margin_deg
+        )
+        if i > 0 and short:  # its margins fail already: no need to simulate it
+            checked.append({"trial": trial.number, "passed": False,
+                            "failures": ["margins below the minima during tuning"]})  # fmt: skip
+            continue
         values = {k: int(v) for k, v in trial.user_attrs["registers"].items()}
         params = problem.space.make_params(values)
         report = check_params(
-            params, problem.scenario, config.check_limits(), extra_plants=extra,
-            workers=config.workers,
-        )  # fmt: skip
+            params, problem.scenario, limits, extra_plants=extra, workers=config.workers
+        )
         checked.append({"trial": trial.number, "passed": report.passed,
                         "failures": list(report.failures)})  # fmt: skip
         if first is None:
