@@ -219,7 +219,8 @@ def tune_command(
     if report is not None and not report["passed"]:
         withheld = ", ".join(summary["hardware_files_withheld"]) or "none (--force)"
         console.print(
-            "[red]check failed:[/red] " + "; ".join(report["failures"])
+            "[red]check failed:[/red] "
+            + "; ".join(report["failures"])
             + f". Hardware files withheld: {withheld}.",
             highlight=False,
         )

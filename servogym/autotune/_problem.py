@@ -75,9 +75,7 @@ class Constraints:
             )
         for name, high in (("min_gain_margin_db", 60.0), ("min_phase_margin_deg", 90.0)):
             value = getattr(self, name)
-            if value is not None and not (
-                isinstance(value, int | float) and 0.0 <= value <= high
-            ):
+            if value is not None and not (isinstance(value, int | float) and 0.0 <= value <= high):
                 raise ParameterError(
                     f"{name} must satisfy 0 <= {name} <= {high:g} (or None for no margin "
                     f"constraint); got {name}={value!r}."
