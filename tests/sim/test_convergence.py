@@ -60,7 +60,7 @@ def random_safe_sets(key: str, n: int) -> list[dict[str, int]]:
     return [
         space.values_from_unit(
             {k: float(np.clip(v + rng.uniform(-0.05, 0.05), 0, 1)) for k, v in u0.items()}
-        )  # fmt: skip
+        )
         for _ in range(n)
     ]
 
