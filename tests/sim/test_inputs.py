@@ -76,3 +76,16 @@ def test_current_is_continuous_through_the_switch_and_reaches_its_reference():
     one_tau = current_at.py_func(latency + tau, i0, r_old, r_new, latency, tau)
     assert (one_tau - i_l) / (r_new - i_l) == pytest.approx(1 - math.exp(-1), rel=1e-12)
     assert current_at.py_func(100 * tau, i0, r_old, r_new, latency, tau) == pytest.approx(r_new)
+
+
+def test_the_plants_amplifier_recurrence_is_the_exact_current_at_sample_instants():
+    from servogym.plants import PLANTS, amplifier_current
+
+    io = PLANTS["rotary"].build({"current_bandwidth_hz": 1500.0}).io
+    tau = 1 / (2 * math.pi * 1500.0)
+    i = 0.0
+    for command in (16384, 16384, -3000, 32767, 0):
+        r = command * io.amp_amps_per_count
+        exact = current_at.py_func(T, i, r, r, 0.0, tau)
+        i = amplifier_current(command, i, io, T)
+        assert i == pytest.approx(exact, rel=1e-13, abs=1e-15)
