@@ -12,7 +12,8 @@ The open loop of one axis at sample instants is ``L(z) = C(z) * P(z)``:
 * ``C(z)``: the linear part of the chip's integer filter (``ChipFamily.filter_response``).
 
 From ``L(e^{jwT})`` on a logarithmic grid up to the Nyquist frequency: the phase margin at
-every gain crossover (the smallest), the gain margin at every crossing of the negative real
+every gain crossover (the smallest; ``180 deg`` plus the phase, taken continuous from the low-
+frequency end as a Bode plot shows it, :func:`continuous_phase`), the gain margin at every crossing of the negative real
 axis with ``|L| < 1`` (the smallest: how much more gain the loop takes), and the closed-loop
 bandwidth (the first frequency where ``|L / (1 + L)|`` falls 3 dB below its low-frequency
 value).
@@ -184,12 +185,12 @@ def margins(freqs_hz: np.ndarray, loop: np.ndarray) -> Margins:
     mag = np.abs(loop)
     with np.errstate(divide="ignore"):
         log_mag = np.log10(np.where(mag > 0, mag, 1e-300))
+    phase = continuous_phase(loop)
     pm, f_pm = math.inf, math.nan
     for k in np.flatnonzero(np.diff(np.sign(log_mag)) != 0):
         f = _interp_at(freqs_hz[k], freqs_hz[k + 1], log_mag[k], log_mag[k + 1])
         w = (f - freqs_hz[k]) / (freqs_hz[k + 1] - freqs_hz[k])
-        angle = np.angle(loop[k]) + w * _wrap(np.angle(loop[k + 1]) - np.angle(loop[k]))
-        margin = math.degrees(_wrap(math.pi + angle))
+        margin = 180.0 + math.degrees(phase[k] + w * (phase[k + 1] - phase[k]))
         if margin < pm:
             pm, f_pm = margin, f
     gm, f_gm = math.inf, math.nan
@@ -210,9 +211,12 @@ def margins(freqs_hz: np.ndarray, loop: np.ndarray) -> Margins:
     return Margins(float(gm), float(pm), float(f_pm), float(f_gm), bw)
 
 
-def _wrap(x: float) -> float:
-    """An angle wrapped to (-pi, pi]."""
-    return float(math.pi - (math.pi - x) % (2 * math.pi))
+def continuous_phase(loop: np.ndarray) -> np.ndarray:
+    """The phase of ``loop`` (rad), continuous along the grid, its low-frequency end in
+    (-2 pi, 0]: the phase a Bode plot shows (-270 degrees at low frequency for a PID on a
+    rigid body), so that ``180 + phase`` at a gain crossover is the classical phase margin."""
+    phase = np.unwrap(np.angle(loop))
+    return phase - 2 * np.pi * math.ceil(phase[0] / (2 * np.pi))
 
 
 def open_loop(
@@ -233,9 +237,7 @@ def bode_plot(path: Any, freqs_hz: np.ndarray, loop: np.ndarray, m: Margins, tit
 
     fig, (ax_m, ax_p) = plt.subplots(2, 1, sharex=True, figsize=(8, 6.5))
     mag_db = 20 * np.log10(np.maximum(np.abs(loop), 1e-300))
-    phase = np.degrees(np.unwrap(np.angle(loop)))
-    # shift the unwrapped phase so the low-frequency end lies in (-360, 0]
-    phase -= 360 * math.ceil(phase[0] / 360)
+    phase = np.degrees(continuous_phase(loop))
     ax_m.semilogx(freqs_hz, mag_db, color="C0")
     ax_m.axhline(0, color="0.5", lw=0.8)
     ax_m.set_ylabel("|L| (dB)")
