@@ -77,6 +77,10 @@ def chips(
                 p["unit"], "yes" if p["tunable"] else "no", p["source"],
             )  # fmt: skip
         console.print(table)
+        for p in entry["parameters"]:
+            if p["default_note"]:
+                note = f"  default {p['name']}={p['default']}: {p['default_note']}"
+                console.print(note, markup=False, highlight=False)
 
 
 @app.command()

@@ -34,6 +34,22 @@ def test_chips_table_names_ranges():
     assert "MC58000" in result.output and "0 .. 65535" in result.output
 
 
+def test_chips_says_where_example_defaults_come_from():
+    # Parker's SGP 85 / SGV 2.3 are the 6250 guide's worked example, not controller defaults;
+    # every other register's default carries no such note.
+    listed = json.loads(runner.invoke(app, ["chips", "--json"]).output)
+    noted = {(e["model"], p["name"]) for e in listed for p in e["parameters"] if p["default_note"]}
+    assert noted == {(m, n) for m in ("6250", "6K") for n in ("sgp", "sgv")}
+    for e in listed:
+        for p in e["parameters"]:
+            if p["default_note"]:
+                assert "worked tuning example" in p["default_note"]
+                assert "not a controller default" in p["default_note"]
+    text = runner.invoke(app, ["chips"]).output
+    assert text.count("default sgp=8500: the 6250 guide's worked tuning example") == 2
+    assert text.count("default sgv=230: the 6250 guide's worked tuning example") == 2
+
+
 def test_plants_json_lists_every_family():
     result = runner.invoke(app, ["plants", "--json"])
     assert result.exit_code == 0

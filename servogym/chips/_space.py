@@ -57,6 +57,8 @@ class ParamSpec:
         unit: Unit of the register, e.g. ``"counts"``, ``"us"``, ``"1/65536"``.
         doc: One line saying what the register does.
         source: How sure the range is: ``"M"`` manual, ``"C"`` public code, ``"A"`` assumption.
+        default_note: Where the default comes from when it is not the controller's own
+            power-up value (a manual's worked example, say); empty when it is.
     """
 
     name: str
@@ -69,6 +71,7 @@ class ParamSpec:
     unit: str = ""
     doc: str = ""
     source: str = "M"
+    default_note: str = ""
 
     def __post_init__(self) -> None:
         if not self.low <= self.default <= self.high:

@@ -267,6 +267,8 @@ class PlantFamily(abc.ABC):
         description: One paragraph saying what the plant is.
         params: The parameters, in a fixed order (the sampling order).
         joint_unit: Unit of the measured joint: ``"rad"`` or ``"m"``.
+        load_param: The parameter that is the axis's load (an inertia or a payload mass),
+            which ``servogym check`` varies.
         position_stages: Whether the servo loop's RK4 must recompute the position-dependent
             quantities (mass matrix, kinematics, gravity torque) at every stage. ``False``
             (the default) is exact only for plants whose forces do not depend on position
@@ -278,6 +280,7 @@ class PlantFamily(abc.ABC):
     description: str
     joint_unit: str
     params: tuple[PlantParam, ...]
+    load_param: str = ""
     position_stages: bool = False
 
     def __init__(self) -> None:

@@ -179,6 +179,7 @@ class RotaryFamily(PlantFamily):
     """Motor rotor with a rigidly coupled inertial load on a horizontal axis."""
 
     name = "rotary"
+    load_param = "load_inertia_kgm2"
     joint_unit = "rad"
     description = (
         "Motor rotor with a rigidly coupled inertial load, horizontal axis through the centre "
@@ -238,6 +239,7 @@ class TwoMassFamily(PlantFamily):
     """Rotor and load joined by a torsional spring and damper (a compliant shaft)."""
 
     name = "two-mass"
+    load_param = "load_inertia_kgm2"
     joint_unit = "rad"
     description = (
         "Rotor and load joined by a torsional spring and damper (compliant coupling or "
@@ -363,6 +365,7 @@ class VerticalAxisFamily(PlantFamily):
     """Ball-screw driven slide moving against gravity, with a variable payload."""
 
     name = "vertical-axis"
+    load_param = "payload_kg"
     joint_unit = "m"
     description = (
         "Ball-screw driven slide moving vertically against gravity, carrying a payload whose "
@@ -481,6 +484,7 @@ class ArmFamily(PlantFamily):
     """A geared link with a tip payload rotating in a vertical plane."""
 
     name = "arm"
+    load_param = "payload_kg"
     joint_unit = "rad"
     position_stages = True  # the gravity torque changes with the angle
     description = (

@@ -97,3 +97,28 @@ def test_profile_assumptions_are_documented(name):
         f"`{a}`" for a in alternatives
     )
     assert expected in DOC
+
+
+def test_assumption_ids_are_unique_and_all_in_the_table():
+    ids = list(ASSUMPTION_IDS.values())
+    assert len(set(ids)) == len(ids) and list(ASSUMPTION_IDS) == list(ASSUMPTION_CHOICES)
+    assert ASSUMPTION_IDS["integral_timing"] == "PK-A10"
+    step6 = DOC[DOC.index("6. **Integral**") : DOC.index("7. **Feed-forward.**")]
+    assert "PK-A10 `integral_timing`" in step6
+
+
+def test_ssfr_table_is_an_assumption_from_the_apex615n_guide():
+    for model in CHIP_MODELS:
+        s = parameter_space(model)["ssfr"]
+        assert s.source == "A" and "APEX615n" in s.doc
+    section3 = DOC[DOC.index("## 3. Sampling (SSFR)") : DOC.index("## 4. One servo sample")]
+    assert section3.split("\n\n")[1].startswith("[A, from the *APEX615n Installation Guide*")
+    assert "[M: APEX615n" not in DOC
+
+
+def test_example_gains_are_labelled_as_the_guides_example():
+    space = parameter_space("6250")
+    notes = {name: s.default_note for name, s in space.items() if s.default_note}
+    assert set(notes) == {"sgp", "sgv"}
+    assert (space["sgp"].default, space["sgv"].default) == (8500, 230)  # SGP85, SGV2.3
+    assert "not controller defaults" in DOC and "`default_note`" in DOC

@@ -18,6 +18,7 @@ from servogym.chips.parker6k import (
     StoredSetActions,
     parker6k_step,
 )
+from servogym.chips.parker6k._params import ASSUMPTION_CHOICES
 from servogym.chips.pmd._kernel import S_TRIPPED as PMD_S_TRIPPED
 
 
@@ -38,7 +39,7 @@ def test_family_interface():
     assert all(s.log for s in space.tunable())
     assert PARKER6K.default_assumptions() == Parker6kAssumptions()
     pa, aa = PARKER6K.kernel_arrays(p, None)
-    assert pa.dtype == aa.dtype == np.int64 and aa.tolist() == [0] * 8
+    assert pa.dtype == aa.dtype == np.int64 and aa.tolist() == [0] * len(ASSUMPTION_CHOICES)
     with pytest.raises(TypeError, match="must be Parker6kAssumptions"):
         PARKER6K.kernel_arrays(p, object())
     assert PARKER6K.new_state().shape == (STATE_SIZE,)

@@ -22,7 +22,7 @@ from servogym.chips.parker6k import (
     parker6k_run,
     parker6k_step,
 )
-from servogym.chips.parker6k._params import ASSUMPTION_CHOICES, GAIN_MAX
+from servogym.chips.parker6k._params import A_INDEX, ASSUMPTION_CHOICES, GAIN_MAX
 
 ZERO = dict(sgp=0, sgi=0, sgv=0, sgvf=0, sgaf=0)
 
@@ -90,6 +90,56 @@ def test_integral_reaches_sgilim_each_limit_mode():
 
 def test_integral_with_zero_limit_is_off():
     assert errors(pk(sgi=6_250_000, sgilim=0), [10000, 10000]) == [0, 0]
+
+
+def test_integral_timing_previous_hand_computed():
+    # PK-A10 "previous": the output of sample n takes the integral term as sample n-1 left it.
+    # Same numbers as above: SGI * E * T = 6,250,000 * 10000 * 160 = 1e13 q/1e6 per sample,
+    # L = 250 mV * 1e5 q/mV * 1e6 = 2.5e13; D = floor(I / 1e6 * 2048 / 1e9).
+    p = pk(sgi=6_250_000, sgilim=250)
+    e = [10000] * 4 + [-10000, 0]
+    # accumulator: I before each sample = 0, 1e13, 2e13, 2.5e13 (limit), 2.5e13, 1.5e13
+    # -> D = 0, floor(20.48) = 20, floor(40.96) = 40, floor(51.2) = 51, 51, floor(30.72) = 30.
+    assert errors(p, e, integral_timing="previous") == [0, 320, 640, 816, 816, 480]
+    # The default ("current") reads I after the update: 1e13, 2e13, 2.5e13, 2.5e13, 1.5e13,
+    # 1.5e13 -> 20, 40, 51, 51, 30, 30.
+    assert errors(p, e) == [320, 640, 816, 816, 480, 480]
+    # output: error sums before each sample 0, 1e4, 2e4, 3e4, 4e4, 3e4; the term
+    # SGI * sum * T = 1e9 * sum, clamped to 2.5e13: 0, 1e13, 2e13, 2.5e13, 2.5e13, 2.5e13.
+    assert errors(p, e, integral_limit="output", integral_timing="previous") == [
+        0, 320, 640, 816, 816, 816,
+    ]  # fmt: skip
+    # conditional: sums before 0, 1e4, 2e4, 2e4 (3e4 refused: 3e13 > L), 2e4 (refused
+    # again), 1e4 (the -1e4 sample was taken) -> 0, 20, 40, 40, 40, 20.
+    assert errors(p, e, integral_limit="conditional", integral_timing="previous") == [
+        0, 320, 640, 640, 640, 320,
+    ]  # fmt: skip
+    # With SGP: P = SGP100 (10000) * 10000 = 1e8 q = 1 V -> D = floor(204.8) = 204 at once,
+    # the integral joins a sample later: 1e8 + 1e7 = 1.1e8 q -> floor(225.28) = 225.
+    both_terms = pk(sgp=10000, sgi=6_250_000, sgilim=250)
+    assert errors(both_terms, [10000, 10000], integral_timing="previous") == [
+        204 * 16, 225 * 16,
+    ]  # fmt: skip
+    # trunc rounding of a negative term read before the update: I = -1e13 after the first
+    # sample -> Int = -1e7 q, D = trunc(-20.48) = -20 in the second sample (floor: -21).
+    assert errors(p, [-10000, 0], integral_timing="previous", rounding="trunc") == [0, -320]
+    assert errors(p, [-10000, 0], integral_timing="previous") == [0, -336]
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    sgi=st.integers(0, GAIN_MAX),
+    sgilim=st.integers(0, 10_000),
+    mode=st.sampled_from(ASSUMPTION_CHOICES["integral_limit"]),
+    errs=st.lists(st.integers(-(2**20), 2**20), min_size=1, max_size=60),
+)
+def test_integral_timing_previous_is_current_one_sample_later(sgi, sgilim, mode, errs):
+    # With the integral as the only term and fixed gains, "previous" is "current" delayed by
+    # one sample: the integrator sees the same errors, only the read moves.
+    p = pk(sgi=sgi, sgilim=sgilim)
+    cur = errors(p, errs, integral_limit=mode)
+    prev = errors(p, errs, integral_limit=mode, integral_timing="previous")
+    assert prev == [0, *cur[:-1]]
 
 
 def test_sgv_sign_convention():
@@ -276,11 +326,19 @@ SETTINGS = Parker6kAssumptions.all_settings()
 IDS = ["default", *[f"{k}={v}" for k, c in ASSUMPTION_CHOICES.items() for v in c[1:]]]
 
 
+def test_every_assumption_setting_covers_integral_timing():
+    # The kernel == reference runs (here and in test_family_contract) iterate all_settings().
+    assert Parker6kAssumptions(integral_timing="previous") in SETTINGS
+    assert Parker6kAssumptions().integral_timing == "current"
+    codes = Parker6kAssumptions(integral_timing="previous").to_array()
+    assert codes[A_INDEX["integral_timing"]] == 1 and codes.sum() == 1
+
+
 @pytest.mark.parametrize("asm", SETTINGS, ids=IDS)
 @settings(max_examples=20, deadline=None)
 @given(params=legal_params(), seed=st.integers(0, 2**32 - 1))
 def test_kernel_matches_reference_every_assumption(asm, params, seed):
-    # 10 settings x 20 examples x 500 ticks = 100,000 ticks per run of the suite.
+    # 11 settings x 20 examples x 500 ticks = 110,000 ticks per run of the suite.
     cp, ap, v, a = inputs(seed, TICKS)
     expected = Parker6kReferenceFilter(params, asm).run(cp, ap, v, a)
     state = new_state()

@@ -74,3 +74,29 @@ def test_assumption_ids_are_numbered_and_cited():
         assert f"{ident} " in section3 or f"{ident}:" in section3, ident
     profile = DOC[DOC.index("## 5. The profile") : DOC.index("## 6. Notch")]
     assert [f"PMAC-P{i}" in profile for i in range(1, 8)] == [True] * 7
+
+
+def test_sourced_ranges_and_bias_order_name_their_source():
+    # Ixx11 and Ixx60: range and default from the public quick reference [M].
+    space = parameter_space("TurboPMAC2")
+    ixx11, ixx60 = space["fatal_following_error_limit"], space["servo_cycle_extension"]
+    assert (ixx11.low, ixx11.high, ixx11.default, ixx11.source) == (0, 8_388_607, 32_000, "M")
+    assert (ixx60.low, ixx60.high, ixx60.default, ixx60.source) == (0, 255, 0, "M")
+    flat = " ".join(DOC.split())
+    assert (
+        "Ixx11 (0 .. 8,388,607, default 32,000 = 2000 counts) and Ixx60 (0 .. 255, default 0) "
+        "are in Delta Tau's public Turbo PMAC quick reference [M]" in flat
+    )
+    unsourced = [n for n, s in space.items() if s.source == "A"]
+    assert unsourced == [
+        "max_phase_frequency_control", "phase_clock_divider", "servo_clock_divider",
+    ]  # fmt: skip
+    # Ixx29 after the limit: the default of PMAC-A9 is the Software Reference's, quoted in
+    # the arithmetic and in the assumption table (the switch stays).
+    quote = (
+        '"added to the output command value before it is written to the command output register"'
+    )
+    (row,) = rows(ASSUMPTION_IDS["bias_order"])
+    assert row[2] == "`limit_then_bias`" and row[4].startswith("Sourced [M]") and quote in row[4]
+    step9 = " ".join(DOC[DOC.index("9. **Output.**") : DOC.index("10. **Killed motor.**")].split())
+    assert "`limit_then_bias` (default, sourced [M]" in step9 and quote in step9

@@ -55,3 +55,20 @@ def test_assumption_table(name):
     (row,) = rows(ASSUMPTION_IDS[name])
     default, *alternatives = ASSUMPTION_CHOICES[name]
     assert row[1:4] == [f"`{name}`", f"`{default}`", ", ".join(f"`{a}`" for a in alternatives)]
+
+
+def test_kout_tension_with_the_manuals_kp_range_is_stated_with_its_arithmetic():
+    # The manual: Kp "typically 1 to 150 when no output scaling is done"; Kout/65536 can
+    # never be 1. The spec's figures must be the code's ranges and default.
+    para = DOC[DOC.index("**Kout and the manual's Kp range") :].split("\n\n")[0]
+    para = " ".join(para.split())
+    navigator = {m.kout_max for m in CHIP_MODELS.values() if m.line != "Magellan"}
+    assert navigator == {32767} and CHIP_MODELS["MC58000"].kout_max == 65535
+    top = 32767 / 65536
+    assert top < 0.5 and f"32767/65536 = {top:.6f}" in para
+    assert f"Kp {top:.6f} .. {150 * top:.4f} unscaled" in para
+    default = parameter_space("MC2100")["kout"].default
+    assert f"Kout {default} ({default}/65536 = {default / 65536:.6f})" in para
+    assert f"Kp {default / 65536:.6f} .. {150 * default / 65536:.4f}" in para
+    assert f"(65535/65536 = {65535 / 65536:.6f})" in para
+    assert '"no output scaling" cannot be set on Navigator or Pilot' in para

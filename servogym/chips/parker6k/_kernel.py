@@ -11,7 +11,8 @@ Arrays:
         the same index as in the PMD kernel).
     p: int64, ``Parker6kParams.to_array()`` (variable length: the SGENB schedule is at its
         end).
-    a: int64[8], ``Parker6kAssumptions.to_array()`` (0 = the default choice).
+    a: int64, ``Parker6kAssumptions.to_array()`` (0 = the default choice; indices in
+        ``A_INDEX``).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ A_ILIM, A_OFFS, A_ROUND = (
     A_INDEX["rounding"],
 )
 A_CMP, A_ZERO = A_INDEX["smper_compare"], A_INDEX["smper_zero"]
+A_ITIME = A_INDEX["integral_timing"]
 
 W = 2**47
 MICRO = 1_000_000
@@ -139,12 +141,19 @@ def parker6k_step(state, p, a, commanded, actual, velocity, acceleration):
     y = _clamp(y, -xc, xc)
     t_v = _clamp(_div(y * MICRO, period, trunc), -W, W)
 
-    # 4.6 integral
+    # 4.6 integral; PK-A10 "previous" (1) reads the term before this sample's update
     lim = p[P_SGILIM] * mv * MICRO
+    before = a[A_ITIME] == 1
+    t_i = 0
     if a[A_ILIM] == 0:
+        if before:
+            t_i = _div(state[S_INTEGRAL], MICRO, trunc)
         state[S_INTEGRAL] = _clamp(state[S_INTEGRAL] + sgi * e * period, -lim, lim)
-        t_i = _div(state[S_INTEGRAL], MICRO, trunc)
+        if not before:
+            t_i = _div(state[S_INTEGRAL], MICRO, trunc)
     else:
+        if before:
+            t_i = _div(_clamp(sgi * state[S_INTEGRAL] * period, -lim, lim), MICRO, trunc)
         candidate = _clamp(state[S_INTEGRAL] + e, S32_LO, S32_HI)
         if a[A_ILIM] == 1:
             state[S_INTEGRAL] = candidate
@@ -154,7 +163,8 @@ def parker6k_step(state, p, a, commanded, actual, velocity, acceleration):
                 z = -z
             if z <= lim:
                 state[S_INTEGRAL] = candidate
-        t_i = _div(_clamp(sgi * state[S_INTEGRAL] * period, -lim, lim), MICRO, trunc)
+        if not before:
+            t_i = _div(_clamp(sgi * state[S_INTEGRAL] * period, -lim, lim), MICRO, trunc)
 
     # 4.7 feed-forward
     t_vf = 0

@@ -19,7 +19,7 @@ import numpy as np
 from servogym.chips._assumptions import AssumptionSet
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
 
-SPEC_VERSION = "parker6k-spec-1"
+SPEC_VERSION = "parker6k-spec-2"
 """Version of ``docs/chips/parker6k.md`` the filter implements; written into exported files."""
 
 GAIN_MAX = 9_999_999
@@ -33,11 +33,15 @@ TICK_MAX = 2**31 - 1
 S32_MAX = 2**31 - 1
 
 SSFR_PERIOD_US: dict[int, int] = {1: 330, 2: 185, 4: 160, 8: 150}
-"""Servo sampling period in microseconds for each SSFR setting [M: APEX615n guide table]."""
+"""Servo sampling period in microseconds for each SSFR setting.
+
+[A], from the table of the *APEX615n Installation Guide*, appendix A (same 6000-series servo
+firmware): the 6250 guide has no such table, so that the 6250 and 6K use it is assumed.
+"""
 SSFR_FREQUENCY_HZ: dict[int, int] = {1: 3030, 2: 5405, 4: 6250, 8: 6667}
 """Servo sampling frequency as the manual's table prints it (rounded; the period is exact)."""
 SSFR_TRAJECTORY_US: dict[int, int] = {r: r * t for r, t in SSFR_PERIOD_US.items()}
-"""Motion trajectory update period: SSFR servo samples (330, 370, 640, 1200 us) [M]."""
+"""Motion trajectory update period: SSFR servo samples (330, 370, 640, 1200 us) [A: APEX615n]."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,7 +66,8 @@ class Parker6kModel:
     family: ClassVar[str] = "parker6k"
 
 
-# The 6250's SSFR4 default is stated for the OEM6250 [M]; the 6K's is assumed the same [A].
+# The 6250's SSFR4 default is stated for the OEM6250 [M: the APEX615n guide's SSFR table];
+# the 6K's is assumed the same [A].
 CHIP_MODELS: dict[str, Parker6kModel] = {
     m.name: m
     for m in [
@@ -99,18 +104,29 @@ ASSUMPTION_CHOICES: dict[str, tuple[str, ...]] = {
     "smper_compare": ("greater", "greater_equal"),  # PK-A7
     "smper_zero": ("off", "limit"),  # PK-A8
     "loop_latency": ("full_period", "same_tick", "half_period"),  # PK-A9
+    "integral_timing": ("current", "previous"),  # PK-A10
 }
 
 ASSUMPTION_IDS: dict[str, str] = {
-    name: f"PK-A{i}" for i, name in enumerate(ASSUMPTION_CHOICES, start=1)
+    "gain_unit": "PK-A1",
+    "dac_bits": "PK-A2",
+    "velocity_feedback": "PK-A3",
+    "integral_limit": "PK-A4",
+    "offset_order": "PK-A5",
+    "rounding": "PK-A6",
+    "smper_compare": "PK-A7",
+    "smper_zero": "PK-A8",
+    "loop_latency": "PK-A9",
+    "integral_timing": "PK-A10",
 }
+"""The spec's id of each switch (ids are never renumbered; the list order is the kernel's)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Parker6kAssumptions(AssumptionSet):
     """Switches for every behaviour of the 6000-series PIV&F filter that no source settles.
 
-    Each field is one assumption of ``docs/chips/parker6k.md`` (PK-A1 ... PK-A9); the default
+    Each field is one assumption of ``docs/chips/parker6k.md`` (PK-A1 ... PK-A10); the default
     is the first choice listed there. A trace from real hardware can decide between them.
 
     Attributes:
@@ -138,6 +154,10 @@ class Parker6kAssumptions(AssumptionSet):
         loop_latency: PK-A9. Time from the encoder sample to the new command reaching the
             drive (the old command holds until then): ``"full_period"`` (the DSP writes the
             output at the next servo sample), ``"same_tick"`` or ``"half_period"``.
+        integral_timing: PK-A10. When the integrator takes this sample's error:
+            ``"current"``: before the output is computed (the integral term of sample n
+            includes E(n)); ``"previous"``: after it (the output of sample n uses the
+            integrator as sample n-1 left it, and E(n) enters from sample n+1 on).
     """
 
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = ASSUMPTION_CHOICES
@@ -152,6 +172,7 @@ class Parker6kAssumptions(AssumptionSet):
     smper_compare: str = "greater"
     smper_zero: str = "off"
     loop_latency: str = "full_period"
+    integral_timing: str = "current"
 
 
 A_INDEX: dict[str, int] = Parker6kAssumptions.index()
@@ -192,7 +213,7 @@ DECIMALS: dict[str, int] = {
 """Decimal places of each command's value: a register holds ``value * 10**DECIMALS``."""
 
 
-def _gain_spec(name: str, default: int, unit: str, doc: str) -> ParamSpec:
+def _gain_spec(name: str, default: int, unit: str, doc: str, default_note: str = "") -> ParamSpec:
     places = DECIMALS[name]
     top = f"{GAIN_MAX // 10**places}.{'9' * places}"
     return ParamSpec(
@@ -205,8 +226,13 @@ def _gain_spec(name: str, default: int, unit: str, doc: str) -> ParamSpec:
         unit=unit,
         doc=doc,
         source="A",
+        default_note=default_note,
     )
 
+
+_EXAMPLE_DEFAULT = (
+    "the 6250 guide's worked tuning example (SGP 85, SGV 2.3), not a controller default"
+)
 
 _GAIN_SPECS = [
     _gain_spec(
@@ -214,6 +240,7 @@ _GAIN_SPECS = [
         8500,
         "0.01 uV/count (PK-A1)",
         "Proportional gain SGP on the position error; 8500 is SGP85",
+        _EXAMPLE_DEFAULT,
     ),
     _gain_spec(
         "sgi",
@@ -226,6 +253,7 @@ _GAIN_SPECS = [
         230,
         "0.01 uV/(count/s) (PK-A1)",
         "Velocity feedback gain SGV on the encoder velocity (PK-A3); 230 is SGV2.3",
+        _EXAMPLE_DEFAULT,
     ),
     _gain_spec(
         "sgvf",
@@ -296,8 +324,9 @@ def parameter_space(model: str | Parker6kModel) -> ParameterSpace:
         "one of 1, 2, 4, 8",
         tunable=False,
         unit="ratio",
-        doc="Servo sampling frequency ratio SSFR: servo period 330, 185, 160, 150 us",
-        source="M",
+        doc="Servo sampling frequency ratio SSFR: servo period 330, 185, 160, 150 us "
+        "(APEX615n guide's table)",
+        source="A",
     )
     return ParameterSpace(m.name, [*_GAIN_SPECS, *_AXIS_SPECS, ssfr])
 
@@ -321,6 +350,9 @@ class GainSet:
     Attributes:
         sgp, sgi, sgv, sgvf: Gains in steps of 0.01 (0 .. 9,999,999, i.e. up to 99999.99).
         sgaf: Gain in steps of 0.0001 (0 .. 9,999,999, i.e. up to 999.9999).
+
+    The defaults SGP85 and SGV2.3 are the 6250 guide's worked tuning example, not values the
+    controller powers up with.
     """
 
     sgp: int = 8500
@@ -528,7 +560,7 @@ class Parker6kParams:
 
     @property
     def trajectory_ticks(self) -> int:
-        """Servo samples per motion trajectory update (equal to SSFR) [M]."""
+        """Servo samples per motion trajectory update (equal to SSFR) [A: APEX615n table]."""
         return self.ssfr
 
     @property
@@ -556,7 +588,8 @@ class Parker6kParams:
 
     @classmethod
     def default(cls, model: str) -> Parker6kParams:
-        """The default set of a model (the manual's worked example gains SGP85, SGV2.3)."""
+        """The default set of a model: the gains of the 6250 guide's worked tuning example
+        (SGP85, SGV2.3; not the controller's power-up values), the rest as in the spec."""
         return cls(model=model)
 
     @classmethod

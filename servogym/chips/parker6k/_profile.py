@@ -1,7 +1,8 @@
 """6000-series move profiles (A, V, D trapezoid; S-curve), in whole-count integer arithmetic.
 
 The controller computes the commanded trajectory once every SSFR servo samples (the motion
-trajectory update period: 330, 370, 640 or 1200 us) [M]; the servo loop runs every sample.
+trajectory update period: 330, 370, 640 or 1200 us) [A: the APEX615n guide's SSFR table];
+the servo loop runs every sample.
 Here a move is a sequence of per-trajectory-period distances in micro-counts, integrated
 exactly and spread over the servo samples of each period (docs/chips/parker6k.md, section 6,
 assumptions PK-P1 ... PK-P6; the switchable ones are :class:`ProfileAssumptions`).

@@ -133,14 +133,22 @@ class Parker6kReferenceFilter:
 
         # 4.6 Integral term, limited by SGILIM (PK-A4); lim in q/10^6.
         lim = p.sgilim * mv * MICRO
+
+        def integral_term() -> int:
+            if a.integral_limit == "accumulator":
+                return self._div(self.integral, MICRO)
+            return self._div(sat(g.sgi * self.integral * period, lim), MICRO)
+
+        term_before = integral_term()
         if a.integral_limit == "accumulator":
             self.integral = sat(self.integral + g.sgi * e * period, lim)
-            t_i = self._div(self.integral, MICRO)
         else:
             candidate = clamp(self.integral + e, *S32)
             if a.integral_limit == "output" or abs(g.sgi * candidate * period) <= lim:
                 self.integral = candidate
-            t_i = self._div(sat(g.sgi * self.integral * period, lim), MICRO)
+        # PK-A10: the output takes the term after this sample's update ("current") or
+        # the one the previous sample left ("previous").
+        t_i = integral_term() if a.integral_timing == "current" else term_before
 
         # 4.7 Feed-forward terms.
         t_vf = sat(g.sgvf * velocity, W)

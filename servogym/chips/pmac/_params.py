@@ -18,7 +18,7 @@ import numpy as np
 from servogym.chips._assumptions import AssumptionSet
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
 
-SPEC_VERSION = "pmac-spec-1"
+SPEC_VERSION = "pmac-spec-2"
 """Version of ``docs/chips/pmac.md`` the filter implements; written into exported files."""
 
 S24_MIN, S24_MAX = -(2**23), 2**23 - 1
@@ -153,7 +153,9 @@ class PMACAssumptions(AssumptionSet):
         friction_order: PMAC-A8. The friction feed-forward Ixx68 is added ``"before_limit"``
             or ``"after_limit"`` (Ixx69).
         bias_order: PMAC-A9. ``"limit_then_bias"``: ``sat16(limit(x) + Ixx29)``;
-            ``"bias_then_limit"``: ``limit(x + Ixx29)``.
+            ``"bias_then_limit"``: ``limit(x + Ixx29)``. The default is sourced [M]: the
+            Software Reference adds Ixx29 "to the output command value before it is written
+            to the command output register", the last step; the switch stays for traces.
         velocity_words: PMAC-A10. Width of the commanded velocity, commanded acceleration and
             velocity-feedback words in internal units: ``"s24"`` or ``"s32"``.
         trip_action: PMAC-A11. On a fatal following error: ``"kill"`` (output 0 from that
@@ -233,7 +235,7 @@ _SPECS = [
         tunable=False,
         unit="1/16 count",
         doc="Ixx11: the motor is killed when the following error exceeds it; 0 disables",
-        source="A",
+        source="M",  # range and default: Delta Tau's public Turbo PMAC quick reference
     ),
     ParamSpec(
         "output_bias",
@@ -313,7 +315,7 @@ _SPECS = [
         tunable=False,
         unit="servo interrupts - 1",
         doc="Ixx60: the filter runs every Ixx60+1 servo interrupts",
-        source="A",
+        source="M",  # range and default: Delta Tau's public Turbo PMAC quick reference
     ),
     ParamSpec(
         "integration_limit",

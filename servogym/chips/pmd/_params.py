@@ -15,7 +15,7 @@ import numpy as np
 from servogym.chips._assumptions import AssumptionSet
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
 
-SPEC_VERSION = "pmd-spec-1"
+SPEC_VERSION = "pmd-spec-2"
 """Version of ``docs/chips/pmd.md`` the filter implements; written into exported files."""
 
 U16_MAX = 32767
