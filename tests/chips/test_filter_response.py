@@ -125,7 +125,8 @@ def linear_params(family, model: str, asm):
         )
         # A notch at 0.08 of the sample rate (Ixx30 rescaled to keep the DC gain).
         return design_notch(0.08 / params.sample_time_s, params.sample_time_s).apply(params)
-    # Parker: SGP300, SGI90000, SGV.5 (uV), or the same voltages in mV (gains / 1000).
+    # Parker: SGP300, SGI90000, SGV.5 in uV; in mV (PK-A1) SGP.3, SGI90, SGV.01, so the
+    # output stays in range (SGV's smallest step is 20 times the scaled .0005).
     gains = dict(sgp=30000, sgi=9000000, sgv=50)
     if asm.gain_unit == "mV":
         gains = dict(sgp=30, sgi=9000, sgv=1)
