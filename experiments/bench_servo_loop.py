@@ -110,8 +110,10 @@ def main() -> None:
     prof = profile_for(plant, args.ticks)
     n = prof.n_ticks
     bare = {}
-    for name, integrator in (("rk4", mujoco.mjtIntegrator.mjINT_RK4),
-                             ("implicitfast", mujoco.mjtIntegrator.mjINT_IMPLICITFAST)):
+    for name, integrator in (
+        ("rk4", mujoco.mjtIntegrator.mjINT_RK4),
+        ("implicitfast", mujoco.mjtIntegrator.mjINT_IMPLICITFAST),
+    ):
         bp = family.build(timestep_s=PARAMS.sample_time_s)
         bp.model.opt.integrator = integrator
         bare[name] = bp
@@ -129,12 +131,14 @@ def main() -> None:
             bm, bd = bp.model, bp.data
             bare_steps(bm._address, bd._address, bd.qpos, bd.ctrl, io.qpos_adr, io.ctrl_index,
                        1e-3, n)  # fmt: skip
+
         return run
 
     def run_loop(lp):
         def run():
             r = lp.run(prof)
             assert r.metrics.n_ticks == n, r.metrics
+
         return run
 
     pn = min(args.python_ticks, n)
@@ -158,8 +162,7 @@ def main() -> None:
         "b_old_tick": rate(n, timed(run_loop(old), args.repeats)),
         "b2_rk4_full_stages": rate(n, timed(run_loop(full), args.repeats)),
         "r_bare_mj_step_rk4": rate(n, timed(run_bare(bare["rk4"]), args.repeats)),
-        "e_bare_mj_step_implicitfast": rate(n, timed(run_bare(bare["implicitfast"]),
-                                                     args.repeats)),
+        "e_bare_mj_step_implicitfast": rate(n, timed(run_bare(bare["implicitfast"]), args.repeats)),
         "c_python_loop": rate(pn, timed(run_c, max(3, args.repeats // 2))),
     }
 

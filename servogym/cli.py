@@ -214,6 +214,72 @@ def simulate(
     console.print(f"wrote {out / 'response.png'} and {out / 'metrics.json'}")
 
 
+@app.command()
+def check(
+    params_file: Annotated[Path, typer.Argument(metavar="PARAMS", help="A parameter file.")],
+    plant: Annotated[str, typer.Option(help="Plant family (see `servogym plants`).")],
+    chip: Annotated[
+        str | None, typer.Option(help="Chip model (default: the file's; must agree).")
+    ] = None,
+    plant_param: Annotated[
+        list[str] | None,
+        typer.Option("--plant-param", help="Plant parameter NAME=VALUE (repeatable)."),
+    ] = None,
+    min_gain_margin: Annotated[
+        float, typer.Option("--min-gain-margin", help="Smallest gain margin (dB).")
+    ] = 6.0,
+    min_phase_margin: Annotated[
+        float, typer.Option("--min-phase-margin", help="Smallest phase margin (deg).")
+    ] = 30.0,
+    out: Annotated[
+        Path | None,
+        typer.Option(help="Folder for bode.png and check.json [default: PARAMS_check/]."),
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
+) -> None:
+    """Check a parameter set before it goes onto a drive: stress set and loop margins.
+
+    Re-simulates the set with the fine reference integration, every loop-latency
+    assumption, the load at +-20 % and friction at +-50 %, and computes gain margin, phase
+    margin and closed-loop bandwidth. Exit code 0 when it passes, 1 when it fails.
+    """
+    from servogym.autotune._cli import check_table
+    from servogym.chips import ParameterError, load_params_file
+    from servogym.plants import PlantParameterError
+    from servogym.sim import Scenario
+    from servogym.sim._check import CheckLimits, check_params
+
+    try:
+        loaded = load_params_file(params_file.read_text())
+        if chip is not None and chip.upper() != loaded.params.model.upper():
+            _fail(f"--chip {chip} differs from the params file's chip model {loaded.params.model}")
+        limits = CheckLimits(
+            min_gain_margin_db=min_gain_margin, min_phase_margin_deg=min_phase_margin
+        )
+        scenario = Scenario(
+            loaded.params.model, plant, plant_values=_key_values(plant_param, "--plant-param"),
+            assumptions=loaded.assumptions,
+        )  # fmt: skip
+        folder = out or params_file.with_name(params_file.stem + "_check")
+        folder.mkdir(parents=True, exist_ok=True)
+        report = check_params(loaded.params, scenario, limits, bode_path=folder / "bode.png")
+    except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
+        _fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
+        return
+    doc = {"params_file": str(params_file), "chip_model": loaded.params.model, "plant": plant,
+           "plant_values": scenario.plant_values, **report.to_dict()}  # fmt: skip
+    (folder / "check.json").write_text(json.dumps(doc, indent=2) + "\n")
+    if as_json:
+        typer.echo(json.dumps(doc, indent=2))
+    else:
+        console.print(check_table(doc))
+        for line in report.failures:
+            console.print(f"[red]fail:[/red] {line}", highlight=False)
+        console.print(f"wrote {folder / 'bode.png'} and {folder / 'check.json'}", highlight=False)
+    if not report.passed:
+        raise typer.Exit(code=1)
+
+
 def _fmt(value: object) -> str:
     if isinstance(value, float):
         return f"{value:.4g}"

@@ -90,6 +90,30 @@ def tune_command(
         int | None,
         typer.Option("--batch-size", help="Trials a sampler asks at once [default: 8]."),
     ] = None,
+    min_gain_margin: Annotated[
+        float,
+        typer.Option("--min-gain-margin", help="Gain margin (dB) trials and the check need."),
+    ] = 6.0,
+    min_phase_margin: Annotated[
+        float,
+        typer.Option("--min-phase-margin", help="Phase margin (deg) trials and the check need."),
+    ] = 30.0,
+    check: Annotated[
+        bool,
+        typer.Option(
+            "--check/--no-check",
+            help="Check the result (reference integration, every loop latency, load and "
+            "friction spreads, margins) before writing hardware files.",
+        ),
+    ] = True,
+    check_candidates: Annotated[
+        int,
+        typer.Option("--check-candidates", help="Best trials the check may try in turn."),
+    ] = 5,
+    force: Annotated[
+        bool,
+        typer.Option("--force", help="Write the hardware files even when the check fails."),
+    ] = False,
 ) -> None:
     """Tune a chip's parameters on a simulated plant and write the tuned set with reports."""
     from rich.console import Console
@@ -131,6 +155,11 @@ def tune_command(
             fix=parse_fix(fix),
             search=tuple(search) if search else None,
             batch_size=batch_size,
+            min_gain_margin_db=min_gain_margin,
+            min_phase_margin_deg=min_phase_margin,
+            check=check,
+            check_candidates=check_candidates,
+            force=force,
         )
         config.problem()  # validate everything before the progress bar
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
@@ -181,9 +210,49 @@ def tune_command(
             "[yellow]warning:[/yellow] no trial met the constraints; the best cost is shown. "
             "Raise the budget or relax --max-following-error / --max-saturation."
         )
+    report = summary.get("check")
+    if report is not None:
+        console.print(check_table(report))
     for name in summary["files"].values():
         console.print(f"wrote {out / name}", highlight=False)
     console.print(f"study: {summary['storage']} (study {summary['study_name']!r})", highlight=False)
+    if report is not None and not report["passed"]:
+        withheld = ", ".join(summary["hardware_files_withheld"]) or "none (--force)"
+        console.print(
+            "[red]check failed:[/red] "
+            + "; ".join(report["failures"])
+            + f". Hardware files withheld: {withheld}.",
+            highlight=False,
+        )
+        if summary["hardware_files_withheld"]:
+            raise typer.Exit(code=1)
+
+
+def check_table(report: dict):
+    """The check's stress cases and margins, printed after the default-vs-tuned table."""
+    from rich.table import Table
+
+    m = report["margins"]
+    verdict = "[green]passed[/green]" if report["passed"] else "[red]FAILED[/red]"
+    title = (
+        f"check {verdict}: gain margin {_margin(m['gain_margin_db'], 'dB')}, phase margin "
+        f"{_margin(m['phase_margin_deg'], 'deg')}, closed-loop bandwidth "
+        f"{_margin(m['bandwidth_hz'], 'Hz')} (minima {report['limits']['min_gain_margin_db']:g} "
+        f"dB, {report['limits']['min_phase_margin_deg']:g} deg)"
+    )
+    table = Table(title=title, title_justify="left")
+    for col in ("case (RK4 reference)", "loop latency", "cost", "diverged",
+                "max following error (counts)"):  # fmt: skip
+        table.add_column(col, justify="left" if col.startswith("case") else "right")
+    for c in report["cases"]:
+        table.add_row(c["name"], c["loop_latency"], _fmt(c["cost"]),
+                      c["divergence_reason"] if c["diverged"] else "no",
+                      _fmt(c["max_following_error"]))  # fmt: skip
+    return table
+
+
+def _margin(x: float | None, unit: str) -> str:
+    return "unbounded" if x is None else f"{x:.3g} {unit}"
 
 
 def summary_heading(summary: dict) -> str:

@@ -16,11 +16,14 @@ from servogym.autotune._session import (
     TuneError,
     best_trial,
     default_storage_url,
+    is_feasible,
     quiet_optuna,
+    scored_trials,
 )
 from servogym.autotune._space import SearchSpace
 from servogym.autotune._tuners import get_tuner
 from servogym.chips._family import get_chip
+from servogym.sim._check import CheckLimits, CheckReport, check_params, write_bode
 from servogym.sim._scenario import Evaluator, MoveSpec, Scenario
 
 
@@ -191,6 +194,12 @@ class TuneConfig:
         moves: Evaluation moves (default the plant's).
         batch_size: Trials per sampler batch.
         study_name: Study name (default ``servogym-<folder name>``).
+        min_gain_margin_db: Margin constraint during tuning and minimum of the check (dB).
+        min_phase_margin_deg: The same for the phase margin (degrees).
+        check: Check the result before writing it (``servogym.sim.check_params``).
+        check_candidates: How many of the best feasible trials the check may try, best
+            first, until one passes.
+        force: Write the hardware files even when the check fails.
     """
 
     chip: str
@@ -215,24 +224,50 @@ class TuneConfig:
     moves: tuple[MoveSpec, ...] = ()
     batch_size: int | None = None
     study_name: str | None = None
+    min_gain_margin_db: float = 6.0
+    min_phase_margin_deg: float = 30.0
+    check: bool = True
+    check_candidates: int = 5
+    force: bool = False
+
+    def __post_init__(self) -> None:
+        n = self.check_candidates
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise TuneError(
+                f"check_candidates must be an integer >= 1; got check_candidates={n!r}."
+            )
+
+    def check_limits(self) -> CheckLimits:
+        """The minima of the check."""
+        return CheckLimits(
+            min_gain_margin_db=self.min_gain_margin_db,
+            min_phase_margin_deg=self.min_phase_margin_deg,
+        )
 
     def problem(self) -> TuneProblem:
         """The :class:`TuneProblem` this configuration describes."""
         from servogym.autotune._problem import DEFAULT_MULTI_OBJECTIVES
 
+        constraints = Constraints(
+            enabled=self.constraints,
+            max_following_error=self.max_following_error,
+            max_saturation=self.max_saturation,
+            min_gain_margin_db=self.min_gain_margin_db,
+            min_phase_margin_deg=self.min_phase_margin_deg,
+        )
         scenario = Scenario(
-            self.chip, self.plant, plant_values=dict(self.plant_params), moves=self.moves
+            self.chip,
+            self.plant,
+            plant_values=dict(self.plant_params),
+            moves=self.moves,
+            margins=constraints.margins,
         )
         return TuneProblem(
             scenario=scenario,
             space=SearchSpace.for_chip(scenario.chip_model, self.search, self.fix),
             n_plants=self.robust,
             robust_mode=self.robust_mode,
-            constraints=Constraints(
-                enabled=self.constraints,
-                max_following_error=self.max_following_error,
-                max_saturation=self.max_saturation,
-            ),
+            constraints=constraints,
             objectives=DEFAULT_MULTI_OBJECTIVES if self.multi_objective else ("cost",),
             seed=self.seed,
         )
@@ -267,8 +302,62 @@ def tune(
         warm_start=warm,
         progress=progress,
     )
-    summary = write_outputs(result, out, config)
+    report = None
+    if config.check:
+        result, report = check_candidates(result, config)
+        write_bode(out / "bode.png", problem.scenario, result.best_params, report.limits)
+    summary = write_outputs(result, out, config, check=report)
     return result, summary
+
+
+def check_candidates(result: StudyResult, config: TuneConfig) -> tuple[StudyResult, CheckReport]:
+    """Check the best trials, best first, until one passes; return it (or the best).
+
+    At most ``config.check_candidates`` trials are checked, each on the reference
+    integration, every loop latency, the load and friction spreads and, for a robust run,
+    its plant draws (``servogym.sim.check_params``).
+    """
+    problem = result.problem
+    extra = problem.plant_instances() if problem.n_plants > 1 else ()
+    candidates = [result.best]
+    if not problem.multi_objective:
+        ranked = sorted(
+            (t for t in scored_trials(result.trials) if t.number != result.best.number),
+            key=lambda t: (not is_feasible(t), t.values[0]),
+        )
+        candidates += ranked[: config.check_candidates - 1]
+    limits = config.check_limits()
+    first = None
+    checked = []
+    for i, trial in enumerate(candidates):
+        outcome = trial.user_attrs.get("outcome", {})
+        gm, pm = outcome.get("gain_margin_db"), outcome.get("phase_margin_deg")
+        short = (gm is not None and gm < limits.min_gain_margin_db) or (
+            pm is not None and pm < limits.min_phase_margin_deg
+        )
+        if i > 0 and short:  # its margins fail already: no need to simulate it
+            checked.append({"trial": trial.number, "passed": False,
+                            "failures": ["margins below the minima during tuning"]})  # fmt: skip
+            continue
+        values = {k: int(v) for k, v in trial.user_attrs["registers"].items()}
+        params = problem.space.make_params(values)
+        report = check_params(
+            params, problem.scenario, limits, extra_plants=extra, workers=config.workers
+        )
+        checked.append({"trial": trial.number, "passed": report.passed,
+                        "failures": list(report.failures)})  # fmt: skip
+        if first is None:
+            first = (trial, values, params, report)
+        if report.passed:
+            first = (trial, values, params, report)
+            break
+    trial, values, params, report = first
+    report = dataclasses.replace(report, candidates=tuple(checked))
+    chosen = dataclasses.replace(
+        result, best=trial, best_values=values, best_params=params,
+        feasible=is_feasible(trial),
+    )  # fmt: skip
+    return chosen, report
 
 
 def parse_plant_params(items: list[str] | None) -> dict[str, int | float]:

@@ -9,6 +9,7 @@ safety figures are the worst over the K instances.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -42,12 +43,24 @@ class Constraints:
             the longest move of the scenario.
         max_saturation: Largest allowed fraction of ticks at the motor limit.
         no_divergence: Whether a diverged episode makes a trial infeasible.
+        min_gain_margin_db: Smallest gain margin of the loop (dB) on every plant instance;
+            ``None``: no margin constraint (docs/simulation.md, "The check").
+        min_phase_margin_deg: Smallest phase margin (degrees); ``None``: none.
     """
 
     enabled: bool = True
     max_following_error: float | None = None
     max_saturation: float = 0.05
     no_divergence: bool = True
+    min_gain_margin_db: float | None = 6.0
+    min_phase_margin_deg: float | None = 30.0
+
+    @property
+    def margins(self) -> bool:
+        """Whether the constraints need the loop's margins."""
+        return self.enabled and (
+            self.min_gain_margin_db is not None or self.min_phase_margin_deg is not None
+        )
 
     def __post_init__(self) -> None:
         if self.max_following_error is not None and not self.max_following_error > 0:
@@ -60,6 +73,13 @@ class Constraints:
                 "max_saturation must satisfy 0 <= max_saturation <= 1; "
                 f"got max_saturation={self.max_saturation!r}."
             )
+        for name, high in (("min_gain_margin_db", 60.0), ("min_phase_margin_deg", 90.0)):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, int | float) and 0.0 <= value <= high):
+                raise ParameterError(
+                    f"{name} must satisfy 0 <= {name} <= {high:g} (or None for no margin "
+                    f"constraint); got {name}={value!r}."
+                )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,6 +94,8 @@ class Outcome:
         max_following_error: Largest following error over moves and instances (counts).
         saturation_fraction: Largest saturation fraction over instances.
         rms_command, chatter, settling_time: Largest over moves and instances.
+        gain_margin_db, phase_margin_deg: Smallest loop margins over instances (``inf``:
+            unbounded, or not computed).
     """
 
     values: dict[str, int]
@@ -85,6 +107,8 @@ class Outcome:
     rms_command: float
     chatter: float
     settling_time: float
+    gain_margin_db: float = math.inf
+    phase_margin_deg: float = math.inf
 
     def objective(self, name: str) -> float:
         """The value of one of :data:`OBJECTIVES`."""
@@ -92,22 +116,38 @@ class Outcome:
 
     def to_attrs(self) -> dict[str, Any]:
         """JSON-ready, for a trial's user attributes."""
-        return dataclasses.asdict(self) | {"costs": list(self.costs)}
+        out = dataclasses.asdict(self) | {"costs": list(self.costs)}
+        for name in _MARGIN_FIELDS:  # JSON has no infinity
+            if not math.isfinite(out[name]):
+                out[name] = None
+        return out
 
     @classmethod
     def from_attrs(cls, attrs: Mapping[str, Any]) -> Outcome:
         """Inverse of :meth:`to_attrs`."""
-        names = [f.name for f in dataclasses.fields(cls)]
+        names = [f.name for f in dataclasses.fields(cls) if f.name not in _MARGIN_FIELDS]
         kw = {n: attrs[n] for n in names}
+        for name in _MARGIN_FIELDS:  # absent in studies from before the margins
+            value = attrs.get(name)
+            kw[name] = math.inf if value is None else float(value)
         kw["costs"] = tuple(kw["costs"])
         kw["values"] = {k: int(v) for k, v in kw["values"].items()}
         return cls(**kw)
 
 
+_MARGIN_FIELDS = ("gain_margin_db", "phase_margin_deg")
+
+MARGIN_CONSTRAINT_BOUND = 1000.0
+"""Margin constraint values are clipped to +-this (Optuna's samplers need finite values)."""
+
+
 def aggregate(values: Mapping[str, int], evaluations: Sequence[Evaluation], mode: str) -> Outcome:
     """Combine the evaluations of one set on each plant instance into an :class:`Outcome`."""
     metrics = [m for e in evaluations for m in e.metrics]
+    computed = [e.margins for e in evaluations if e.margins is not None]
     return Outcome(
+        gain_margin_db=min((m.gain_margin_db for m in computed), default=math.inf),
+        phase_margin_deg=min((m.phase_margin_deg for m in computed), default=math.inf),
         values=dict(values),
         cost=robust_cost(evaluations, mode),
         costs=tuple(float(e.cost) for e in evaluations),
@@ -217,6 +257,13 @@ class TuneProblem:
         }
         if c.no_divergence:
             out["diverged"] = float(outcome.n_diverged)
+        bound = MARGIN_CONSTRAINT_BOUND
+        if c.min_gain_margin_db is not None:
+            v = c.min_gain_margin_db - outcome.gain_margin_db
+            out["gain_margin"] = min(max(v, -bound), bound)
+        if c.min_phase_margin_deg is not None:
+            v = c.min_phase_margin_deg - outcome.phase_margin_deg
+            out["phase_margin"] = min(max(v, -bound), bound)
         return out
 
     def objective_values(self, outcome: Outcome) -> list[float]:
@@ -232,6 +279,7 @@ class TuneProblem:
             "plant_values": dict(sc.plant_values),
             "moves": [dataclasses.asdict(m) for m in sc.moves],
             "weights": dataclasses.asdict(sc.weights),
+            "integrator": sc.integrator,
             "substeps": sc.substeps,
             "space": self.space.describe(),
             "n_plants": self.n_plants,

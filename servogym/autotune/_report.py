@@ -170,8 +170,13 @@ def pareto_figure(trials: list[Any], objectives: tuple[str, ...]):
     return fig
 
 
-def write_outputs(result: Any, out: Path, config: Any) -> dict[str, Any]:
-    """Write every output file of a tuned run; return the summary (also summary.json)."""
+def write_outputs(result: Any, out: Path, config: Any, check: Any = None) -> dict[str, Any]:
+    """Write every output file of a tuned run; return the summary (also summary.json).
+
+    ``check`` is the result's :class:`~servogym.sim.CheckReport` (``None``: not checked).
+    When it failed, only the JSON parameter file is written, not the files a drive loads,
+    unless ``config.force``.
+    """
     from servogym.sim._plot import plot_response
 
     problem: TuneProblem = result.problem
@@ -195,8 +200,13 @@ def write_outputs(result: Any, out: Path, config: Any) -> dict[str, Any]:
         "scenario": problem.describe(),
         "study": {"storage": result.storage, "name": result.study_name},
     }
+    if check is not None:
+        notes["check"] = _jsonable(check.to_dict())
+    withheld = check is not None and not check.passed and not getattr(config, "force", False)
     names = export_names(family)
     for fmt, name in names.items():
+        if withheld and fmt != "json":
+            continue
         kw: dict[str, Any] = {}
         if fmt == "json":
             kw = {
@@ -222,6 +232,8 @@ def write_outputs(result: Any, out: Path, config: Any) -> dict[str, Any]:
     )
     fig.savefig(out / "convergence.png", dpi=110)
     files["convergence_plot"] = "convergence.png"
+    if (out / "bode.png").exists() and check is not None:
+        files["bode_plot"] = "bode.png"
     if problem.multi_objective:
         pareto_figure(result.trials, problem.objectives).savefig(out / "pareto.png", dpi=110)
         files["pareto_plot"] = "pareto.png"
@@ -249,6 +261,8 @@ def write_outputs(result: Any, out: Path, config: Any) -> dict[str, Any]:
         "study_name": result.study_name,
         "elapsed_s": result.elapsed_s,
         "files": files,
+        "check": None if check is None else check.to_dict(),
+        "hardware_files_withheld": [f for f in names if f != "json"] if withheld else [],
     }
     if problem.multi_objective:
         scored = scored_trials(result.trials)

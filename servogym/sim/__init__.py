@@ -1,7 +1,16 @@
 """The closed-loop servo runner (a compiled hot loop around mj_step), metrics and the cost."""
 
+from servogym.sim._check import CaseResult, CheckLimits, CheckReport, check_params
+from servogym.sim._margins import Margins
 from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics
-from servogym.sim._runner import EpisodeResult, ServoLoop, Traces
+from servogym.sim._runner import (
+    MAX_SUBSTEP_S,
+    REFERENCE_SUBSTEPS,
+    EpisodeResult,
+    ServoLoop,
+    Traces,
+    default_substeps,
+)
 from servogym.sim._scenario import (
     COST_CAP,
     DEFAULT_MOVES,
@@ -19,16 +28,24 @@ __all__ = [
     "COST_CAP",
     "DEFAULT_MOVES",
     "DIVERGENCE_PENALTY",
+    "MAX_SUBSTEP_S",
     "METRIC_NAMES",
+    "REFERENCE_SUBSTEPS",
+    "CaseResult",
+    "CheckLimits",
+    "CheckReport",
     "CostWeights",
     "EpisodeMetrics",
     "EpisodeResult",
     "Evaluation",
     "Evaluator",
+    "Margins",
     "MoveSpec",
     "Scenario",
     "ServoLoop",
     "Traces",
+    "check_params",
+    "default_substeps",
     "move_cost",
     "robust_cost",
 ]

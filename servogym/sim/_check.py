@@ -117,6 +117,8 @@ class CheckReport:
         margins_by_latency: Margins at each ``loop_latency`` choice.
         limits: The limits applied.
         elapsed_s: Wall time of the check (s).
+        candidates: When a tuner's result was chosen by checking its best trials in turn:
+            each trial checked, whether it passed and why not.
     """
 
     passed: bool
@@ -126,6 +128,7 @@ class CheckReport:
     margins_by_latency: dict[str, Margins]
     limits: CheckLimits
     elapsed_s: float
+    candidates: tuple[dict[str, Any], ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (for best_params.json's provenance and check.json)."""
@@ -137,6 +140,7 @@ class CheckReport:
             "cases": [c.to_dict() for c in self.cases],
             "limits": dataclasses.asdict(self.limits),
             "elapsed_s": self.elapsed_s,
+            "candidates": list(self.candidates),
         }
 
 
@@ -277,9 +281,7 @@ def check_params(
             f"({limits.min_phase_margin_deg - m.phase_margin_deg:.2f} deg short)"
         )
     if bode_path is not None:
-        title = f"{scenario.chip_model} on {scenario.plant}: open loop ({asm.loop_latency})"
-        bode_plot(bode_path, main[0], main[1], m, title,
-                  (limits.min_gain_margin_db, limits.min_phase_margin_deg))  # fmt: skip
+        write_bode(bode_path, scenario, params, limits, main)
     return CheckReport(
         passed=not failures,
         failures=tuple(failures),
@@ -289,3 +291,12 @@ def check_params(
         limits=limits,
         elapsed_s=time.perf_counter() - t0,
     )
+
+
+def write_bode(path: Any, scenario: Scenario, params: Any, limits: CheckLimits, computed=None):
+    """Write the Bode plot of the open loop of ``params`` on the nominal plant (PNG)."""
+    asm = scenario.assumptions or scenario.chip.default_assumptions()
+    freqs, loop, m = computed or loop_margins(scenario, params)
+    title = f"{scenario.chip_model} on {scenario.plant}: open loop (latency {asm.loop_latency})"
+    bode_plot(path, freqs, loop, m, title,
+              (limits.min_gain_margin_db, limits.min_phase_margin_deg))  # fmt: skip

@@ -40,9 +40,11 @@ class LinearPlant:
     """A plant discretised at one servo period with one loop latency (see the module doc).
 
     Attributes:
-        phi, g_new, g_old: ``x[k+1] = phi x[k] + g_new u[k] + g_old u[k-1]``; ``u`` is the
-            motor command in counts.
+        phi, g_new, g_old: ``x[k+1] = phi x[k] + g_new u[k] + g_old u[k-1] + drift``; ``u``
+            is the motor command in counts.
         c: Output row: encoder counts of the motor joint.
+        drift: What the plant does in a tick at zero command from rest: the gravity force
+            at the operating point (no effect on the loop's transfer function).
         dt: Servo period (s).
         latency: Loop latency (s).
     """
@@ -50,6 +52,7 @@ class LinearPlant:
     phi: np.ndarray
     g_new: np.ndarray
     g_old: np.ndarray
+    drift: np.ndarray
     c: np.ndarray
     dt: float
     latency: float
@@ -64,8 +67,10 @@ class LinearPlant:
         return x @ self.c
 
 
-def continuous_model(plant: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(A, B, C)`` of the plant from motor current (A) to encoder counts, continuous time.
+def continuous_model(plant: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, C, d)`` of the plant from motor current (A) to encoder counts, continuous time.
+
+    ``d`` is the state derivative at the operating point with zero current (gravity).
 
     The state is ``(qpos, qvel)`` (plus the current, with a current-loop lag); the plant's own
     state and model settings are left as they were.
@@ -83,6 +88,7 @@ def continuous_model(plant: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS | mujoco.mjtDisableBit.mjDSBL_EULERDAMP
         )
         mujoco.mj_forward(model, data)
+        qacc0 = data.qacc.copy()
         ad = np.zeros((2 * nv, 2 * nv))
         bd = np.zeros((2 * nv, model.nu))
         mujoco.mjd_transitionFD(model, data, 1e-6, True, ad, bd, None, None)
@@ -108,7 +114,9 @@ def continuous_model(plant: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         b[nv : 2 * nv] = a_u
     c = np.zeros(n)
     c[io.qpos_adr] = io.counts_per_unit
-    return a, b, c
+    d = np.zeros(n)
+    d[nv : 2 * nv] = qacc0
+    return a, b, c, d
 
 
 def _hold_integral(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -123,14 +131,15 @@ def _hold_integral(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, 
 
 def linearize(plant: Any, dt: float, latency: float) -> LinearPlant:
     """The plant at period ``dt`` with loop latency ``latency`` (s), input in command counts."""
-    a, b, c = continuous_model(plant)
+    a, b, c, d = continuous_model(plant)
     b = b * plant.io.amp_amps_per_count
     phi_rest, g_new = _hold_integral(a, b, dt - latency)
     phi_lat, g_lat = _hold_integral(a, b, latency)
-    phi = phi_rest @ phi_lat
+    _, drift = _hold_integral(a, d, dt)
     return LinearPlant(
-        phi=phi, g_new=g_new, g_old=phi_rest @ g_lat, c=c, dt=float(dt), latency=float(latency)
-    )
+        phi=phi_rest @ phi_lat, g_new=g_new, g_old=phi_rest @ g_lat, drift=drift, c=c,
+        dt=float(dt), latency=float(latency),
+    )  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)

@@ -17,6 +17,7 @@ import numpy as np
 
 from servogym.chips._family import Move, get_chip
 from servogym.plants import get_plant
+from servogym.sim._margins import Margins, frequency_grid, linearize, margins
 from servogym.sim._metrics import EpisodeMetrics
 from servogym.sim._runner import EpisodeResult, ServoLoop
 
@@ -135,6 +136,8 @@ class Scenario:
         substeps: Integration substeps per servo tick; ``None``: the integrator's default.
         assumptions: The chip's assumption switches (``None``: defaults), the loop
             latency among them.
+        margins: Whether each evaluation also computes the loop's stability margins on its
+            plant instance (``Evaluation.margins``; the tuners' margin constraints).
     """
 
     chip_model: str
@@ -147,6 +150,7 @@ class Scenario:
     integrator: str = "rk4"
     substeps: int | None = None
     assumptions: Any = None
+    margins: bool = False
 
     def __post_init__(self) -> None:
         _, model = get_chip(self.chip_model)
@@ -188,6 +192,7 @@ class Evaluation:
         max_following_error: Largest following error over the moves (counts).
         saturation_fraction: Fraction of all ticks run whose command hit the motor limit.
         results: Each move's :class:`EpisodeResult` (traces when asked for).
+        margins: The loop's stability margins on this plant instance (``Scenario.margins``).
     """
 
     cost: float
@@ -197,10 +202,12 @@ class Evaluation:
     max_following_error: float
     saturation_fraction: float
     results: tuple[EpisodeResult, ...] = ()
+    margins: Margins | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: cost, safety figures and each move's metrics."""
-        return {
+        extra = {} if self.margins is None else {"margins": self.margins.to_dict()}
+        return extra | {
             "cost": self.cost,
             "diverged": self.diverged,
             "max_following_error": self.max_following_error,
@@ -231,6 +238,25 @@ class Evaluator:
             substeps=scenario.substeps,
         )
         self._profiles: dict[tuple, list] = {}
+        self._plant_responses: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+    def margins(self, params: Any) -> Margins:
+        """Stability margins of ``params`` on the current plant instance (``_margins``).
+
+        The plant's linearisation and frequency response are computed once per plant
+        instance, servo period and latency, then reused.
+        """
+        chip = self.scenario.chip
+        asm = self.scenario.assumptions or chip.default_assumptions()
+        dt = chip.sample_time_s(params)
+        latency = chip.loop_latency_s(params, asm)
+        key = (tuple(sorted(self.plant.values.items())), dt, latency)
+        if key not in self._plant_responses:
+            freqs = frequency_grid(dt)
+            z = np.exp(2j * np.pi * freqs * dt)
+            self._plant_responses[key] = (freqs, z, linearize(self.plant, dt, latency).response(z))
+        freqs, z, plant_response = self._plant_responses[key]
+        return margins(freqs, chip.filter_response(params, asm, z) * plant_response)
 
     def profiles(self, params: Any) -> list:
         """The chip profiles of the scenario's moves at this plant's encoder resolution."""
@@ -277,6 +303,7 @@ class Evaluator:
         else:
             cost = float(np.mean(costs))
         return Evaluation(
+            margins=self.margins(params) if self.scenario.margins else None,
             cost=cost,
             move_costs=tuple(costs),
             metrics=metrics,

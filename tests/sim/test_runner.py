@@ -15,9 +15,9 @@ from servogym.chips import all_models
 from servogym.chips.pmd import PMDParams
 from servogym.plants import PLANTS, get_plant
 from servogym.sim import METRIC_NAMES, ServoLoop
+from servogym.sim._loop import INTEGRATORS
 from servogym.sim._metrics import compute_metrics
 from servogym.sim._pyloop import python_closed_loop
-from servogym.sim._loop import INTEGRATORS
 from servogym.sim._runner import TRAVEL_MARGIN, current_loop_tau
 
 
