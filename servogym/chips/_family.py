@@ -170,9 +170,7 @@ class ChipFamily(abc.ABC):
             out = np.asarray(self.response_function(params, asm, zz), dtype=complex)
         return np.broadcast_to(out, zz.shape).copy()
 
-    def filter_frequency_response(
-        self, params: Any, assumptions: Any, freqs_hz: Any
-    ) -> np.ndarray:
+    def filter_frequency_response(self, params: Any, assumptions: Any, freqs_hz: Any) -> np.ndarray:
         """:meth:`filter_response` at ``z = exp(2j pi f T)``, ``T`` = :meth:`sample_time_s`.
 
         Args:
@@ -297,4 +295,5 @@ def family_of(params: Any) -> ChipFamily:
 def _load_builtin() -> None:
     # Importing a family's package registers it.
     import servogym.chips.parker6k
+    import servogym.chips.pmac
     import servogym.chips.pmd  # noqa: F401

@@ -18,14 +18,16 @@ def filter_response(
 ) -> np.ndarray:
     """``C(z)``: motor-command counts per count of ``E = CP - AP`` with ``CP`` held.
 
-    ``C(z) = 32768 / FS * [SGP + SGI T / 10^6 / (1 - z^-1) + SGV 10^6 / T (1 - z^-1)]``
-    with the gains as their registers (steps of 0.01 of PK-A1's unit, so one step times a
+    ``C(z) = 32768 / FS * [SGP + SGI T / 10^6 * I(z) + SGV 10^6 / T * (1 - z^-1)]`` with
+    the gains as their registers (steps of 0.01 of PK-A1's unit, so one step times one
     count is one signal unit q), ``FS`` the q in 10 V (PK-A1: 10^9 for ``uV``, 10^6 for
-    ``mV``), ``T`` the servo period in us (SSFR) and the integral including this sample's
-    error (every PK-A4 choice). The command is the DAC code times ``2^(16 - bits)``, so
-    ``32768 / FS`` holds for either DAC width (PK-A2 changes only the step). The velocity
-    term is the same under either PK-A3 choice: ``encoder`` differences ``-AP``, which with
-    ``CP`` held is the error's difference, and ``error_rate`` the error's difference itself.
+    ``mV``) and ``T`` the servo period in us (SSFR). ``I(z) = 1 / (1 - z^-1)`` under PK-A10
+    ``current`` (the integral includes this sample's error) and ``z^-1 / (1 - z^-1)`` under
+    ``previous``, for every PK-A4 choice. The command is the DAC code times
+    ``2^(16 - bits)``, so ``32768 / FS`` holds for either DAC width (PK-A2 changes only the
+    step). The velocity term is the same under either PK-A3 choice: ``encoder`` differences
+    ``-AP``, which with ``CP`` held is the error's difference; ``error_rate`` differences
+    the error itself.
     The gains are those in force at sample 0 (an SGENB switch at tick 0, else
     ``sgp ... sgaf``); for stored set n, pass ``params.enable(n)``.
 
@@ -38,6 +40,9 @@ def filter_response(
     fs, _, _ = scale_of(assumptions)
     period = params.sample_time_us
     zi = 1 / z
-    integral = g.sgi * period / MICRO / (1 - zi) if g.sgi else 0.0
+    integral = 0.0
+    if g.sgi:
+        delay = 1.0 if assumptions.integral_timing == "current" else zi
+        integral = g.sgi * period / MICRO * delay / (1 - zi)
     velocity = g.sgv * MICRO / period * (1 - zi)
     return 2.0**15 / fs * (g.sgp + integral + velocity)

@@ -20,9 +20,7 @@ def notch_transfer(params: PMACParams, zi: np.ndarray) -> np.ndarray:
     return (1 + n1 * zi + n2 * zi**2) / (1 + d1 * zi + d2 * zi**2)
 
 
-def filter_response(
-    params: PMACParams, assumptions: PMACAssumptions, z: np.ndarray
-) -> np.ndarray:
+def filter_response(params: PMACParams, assumptions: PMACAssumptions, z: np.ndarray) -> np.ndarray:
     """``C(z)``: DAC counts per count of ``FE = CP - AP`` with ``CP`` held.
 
     ``C(z) = 2^-19 Ixx30 F(z) [Ixx08 (1 + Ixx33 2^-23 I(z)) + Ixx31 Ixx09 2^-7 (1 - z^-1)]``

@@ -39,7 +39,8 @@ def biquad_response(params: PMDParams, stage: int, frac: int, zi: np.ndarray) ->
     Every coefficient is its register over ``2^frac`` (PMD-A12: 14 or 15 fractional bits).
     """
     b0, b1, b2, a1, a2, k = (
-        getattr(params, f"biquad{stage}_{n}") / 2.0**frac for n in ("b0", "b1", "b2", "a1", "a2", "k")
+        getattr(params, f"biquad{stage}_{n}") / 2.0**frac
+        for n in ("b0", "b1", "b2", "a1", "a2", "k")
     )
     return k * (b0 + b1 * zi + b2 * zi**2) / (1 + a1 * zi + a2 * zi**2)
 
