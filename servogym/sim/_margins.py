@@ -12,9 +12,9 @@ The open loop of one axis at sample instants is ``L(z) = C(z) * P(z)``:
 * ``C(z)``: the linear part of the chip's integer filter (``ChipFamily.filter_response``).
 
 From ``L(e^{jwT})`` on a logarithmic grid up to the Nyquist frequency: the phase margin at
-every gain crossover (the smallest; ``180 deg`` plus the phase, taken continuous from the low-
-frequency end as a Bode plot shows it, :func:`continuous_phase`), the gain margin at every crossing of the negative real
-axis with ``|L| < 1`` (the smallest: how much more gain the loop takes), and the closed-loop
+every gain crossover (the smallest; 180 degrees plus the phase, taken continuous from the
+low-frequency end as a Bode plot shows it, :func:`continuous_phase`), the gain margin at
+every crossing of the negative real axis with ``|L| < 1`` (the smallest: how much more gain the loop takes), and the closed-loop
 bandwidth (the first frequency where ``|L / (1 + L)|`` falls 3 dB below its low-frequency
 value).
 """
