@@ -12,10 +12,12 @@ The open loop of one axis at sample instants is ``L(z) = C(z) * P(z)``:
 * ``C(z)``: the linear part of the chip's integer filter (``ChipFamily.filter_response``).
 
 From ``L(e^{jwT})`` on a logarithmic grid up to the Nyquist frequency: the phase margin at
-every gain crossover (the smallest; 180 degrees plus the phase, taken continuous from the
-low-frequency end as a Bode plot shows it, :func:`continuous_phase`), the gain margin at
-every crossing of the negative real axis with ``|L| < 1`` (the smallest: how much more gain the loop takes), and the closed-loop
-bandwidth (the first frequency where ``|L / (1 + L)|`` falls 3 dB below its low-frequency
+every gain crossover (the smallest): at the first (the loop's bandwidth) 180 degrees plus the
+phase taken continuous from the low-frequency end, as a Bode plot shows it
+(:func:`continuous_phase`; negative for a loop unstable there), at any later one (a
+resonance peak or a gain rise near Nyquist) the angle between ``L`` and -1; the gain margin at
+every crossing of the negative real axis with ``|L| < 1`` (the smallest: how much more gain
+the loop takes), and the closed-loop bandwidth (the first frequency where ``|L / (1 + L)|`` falls 3 dB below its low-frequency
 value).
 """
 
@@ -187,10 +189,12 @@ def margins(freqs_hz: np.ndarray, loop: np.ndarray) -> Margins:
         log_mag = np.log10(np.where(mag > 0, mag, 1e-300))
     phase = continuous_phase(loop)
     pm, f_pm = math.inf, math.nan
-    for k in np.flatnonzero(np.diff(np.sign(log_mag)) != 0):
+    for i, k in enumerate(np.flatnonzero(np.diff(np.sign(log_mag)) != 0)):
         f = _interp_at(freqs_hz[k], freqs_hz[k + 1], log_mag[k], log_mag[k + 1])
         w = (f - freqs_hz[k]) / (freqs_hz[k + 1] - freqs_hz[k])
         margin = 180.0 + math.degrees(phase[k] + w * (phase[k + 1] - phase[k]))
+        if i > 0:  # a later crossover (a resonance, a boost near Nyquist): distance from -1
+            margin = abs((margin + 180.0) % 360.0 - 180.0)
         if margin < pm:
             pm, f_pm = margin, f
     gm, f_gm = math.inf, math.nan

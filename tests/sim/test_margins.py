@@ -74,3 +74,17 @@ def test_a_loop_that_never_crosses_has_unbounded_phase_margin():
     assert math.isinf(m.phase_margin_deg) and math.isnan(m.gain_crossover_hz)
     assert math.isinf(m.gain_margin_db)
     assert m.to_dict()["phase_margin_deg"] is None
+
+
+def test_a_later_crossover_counts_by_its_distance_from_minus_one():
+    """A loop that rises above 0 dB again near Nyquist with its phase past -270 degrees:
+    the classical formula would give 180 - 300 = -120 degrees; that crossing lies 120
+    degrees from -1, and the bandwidth crossover's 55 degrees is the margin."""
+    f = np.array([1.0, 100.0, 199.0, 201.0, 600.0, 1070.0, 1090.0])
+    mag = np.array([100.0, 3.0, 1.01, 0.99, 0.5, 0.99, 1.01])
+    deg = np.array([-180.0, -150.0, -125.0, -125.0, -180.0, -300.0, -300.0])
+    loop = mag * np.exp(1j * np.radians(deg))
+    m = margins(f, loop)
+    assert m.phase_margin_deg == pytest.approx(55.0)
+    assert m.gain_crossover_hz == pytest.approx(200.0, rel=1e-3)
+    assert m.gain_margin_db == pytest.approx(-20 * math.log10(0.5), abs=0.01)
