@@ -200,6 +200,9 @@ class TuneConfig:
         check_candidates: How many of the best feasible trials the check may try, best
             first, until one passes.
         force: Write the hardware files even when the check fails.
+        design_start: For an Optuna tuner on a new study without ``warm_start``: first run
+            the model-based tuner (:data:`DESIGN_BUDGET` simulations, not counted in
+            ``budget``) and start the study from its best design.
     """
 
     chip: str
@@ -229,6 +232,7 @@ class TuneConfig:
     check: bool = True
     check_candidates: int = 5
     force: bool = False
+    design_start: bool = True
 
     def __post_init__(self) -> None:
         n = self.check_candidates
@@ -290,6 +294,10 @@ def tune(
     warm = None
     if config.warm_start is not None:
         warm = read_param_file(config.warm_start, problem.scenario.chip_model)
+    design = None
+    if warm is None and config.design_start and not config.resume:
+        design = design_start(problem, config)
+        warm = design.get("values")
     result = run_study(
         problem,
         config.tuner,
@@ -306,9 +314,40 @@ def tune(
     if config.check:
         result, report = check_candidates(result, config)
         write_bode(out / "bode.png", problem.scenario, result.best_params, report.limits)
-    summary = write_outputs(result, out, config, check=report)
+    extra = {} if design is None else {"design_start": design}
+    summary = write_outputs(result, out, config, check=report, extra=extra)
     return result, summary
 
+
+DESIGN_BUDGET = 7
+"""Simulations of the model-based design a default tune starts from (2 identification
+moves and 5 candidate bandwidths)."""
+
+
+def design_start(problem: TuneProblem, config: TuneConfig) -> dict[str, Any]:
+    """The model-based tuner's best design on ``problem`` (in memory), as a warm start.
+
+    Only for the Optuna tuners (the classical ones are procedures of their own) and
+    single-objective studies; returns ``{"values": ..., "cost": ..., "feasible": ...}``, or
+    ``{"skipped": why}``.
+    """
+    from servogym.autotune._tuners import OptunaTuner
+
+    if not isinstance(get_tuner(config.tuner), OptunaTuner):
+        return {"skipped": f"{config.tuner} is not an Optuna tuner"}
+    if problem.multi_objective:
+        return {"skipped": "multi-objective study"}
+    try:
+        res = run_study(problem, "model-based", DESIGN_BUDGET, storage=None,
+                        n_workers=config.workers)  # fmt: skip
+    except TuneError as exc:
+        return {"skipped": str(exc)}
+    return {
+        "values": res.best_values,
+        "cost": float(res.best.values[0]),
+        "feasible": bool(res.feasible),
+        "evaluations": len(res.trials),
+    }
 
 def check_candidates(result: StudyResult, config: TuneConfig) -> tuple[StudyResult, CheckReport]:
     """Check the best trials, best first, until one passes; return it (or the best).

@@ -170,12 +170,14 @@ def pareto_figure(trials: list[Any], objectives: tuple[str, ...]):
     return fig
 
 
-def write_outputs(result: Any, out: Path, config: Any, check: Any = None) -> dict[str, Any]:
+def write_outputs(
+    result: Any, out: Path, config: Any, check: Any = None, extra: dict | None = None
+) -> dict[str, Any]:
     """Write every output file of a tuned run; return the summary (also summary.json).
 
     ``check`` is the result's :class:`~servogym.sim.CheckReport` (``None``: not checked).
     When it failed, only the JSON parameter file is written, not the files a drive loads,
-    unless ``config.force``.
+    unless ``config.force``. ``extra`` entries are added to the summary.
     """
     from servogym.sim._plot import plot_response
 
@@ -263,6 +265,7 @@ def write_outputs(result: Any, out: Path, config: Any, check: Any = None) -> dic
         "files": files,
         "check": None if check is None else check.to_dict(),
         "hardware_files_withheld": [f for f in names if f != "json"] if withheld else [],
+        **(extra or {}),
     }
     if problem.multi_objective:
         scored = scored_trials(result.trials)
