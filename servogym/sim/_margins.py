@@ -17,8 +17,8 @@ phase taken continuous from the low-frequency end, as a Bode plot shows it
 (:func:`continuous_phase`; negative for a loop unstable there), at any later one (a
 resonance peak or a gain rise near Nyquist) the angle between ``L`` and -1; the gain margin at
 every crossing of the negative real axis with ``|L| < 1`` (the smallest: how much more gain
-the loop takes), and the closed-loop bandwidth (the first frequency where ``|L / (1 + L)|`` falls 3 dB below its low-frequency
-value).
+the loop takes), and the closed-loop bandwidth (the first frequency where ``|L / (1 + L)|``
+falls 3 dB below its low-frequency value).
 """
 
 from __future__ import annotations
