@@ -50,8 +50,8 @@ def test_a_passing_check_is_in_the_provenance_and_the_table(tmp_path):
     app = typer.Typer()
     app.command("tune")(tune_command)
     app.command("noop")(lambda: None)
-    argv = ["tune", "--chip", "TurboPMAC2", "--plant", "rotary", "--budget", "8",
-            "--tuner", "model-based", "--out", str(tmp_path), "--check-candidates", "2"]  # fmt: skip
+    argv = ["tune", "--chip", "TurboPMAC2", "--plant", "rotary", "--budget", "8", "--tuner",
+            "model-based", "--out", str(tmp_path), "--check-candidates", "2"]  # fmt: skip
     r = CliRunner().invoke(app, argv, env={"COLUMNS": "250"})
     summary = json.loads((tmp_path / "summary.json").read_text())
     check = summary["check"]

@@ -92,7 +92,7 @@ def test_a_set_that_diverges_in_one_case_fails_naming_it():
 
 
 def test_check_command_passes_and_fails_with_exit_codes(tmp_path):
-    scenario, params = safe("6250", "rotary")
+    _, params = safe("6250", "rotary")
     family = get_chip("6250")[0]
     path = tmp_path / "set.json"
     path.write_text(family.export(params, "json"))
