@@ -136,13 +136,42 @@ def sweep(n_random: int) -> None:
     summarize()
 
 
+def rejudge(r: dict) -> dict:
+    """Apply the current rule (servogym.sim._convergence) to a recorded row's figures."""
+    from servogym.sim._convergence import (
+        COST_TOLERANCE,
+        UNSETTLED_COST_TOLERANCE,
+        WELL_DAMPED_COST,
+    )
+    from servogym.sim._scenario import COST_CAP
+
+    settled = r["settled"] and r["reference_cost"] < WELL_DAMPED_COST
+    ok = r["diverged"] == r["reference_diverged"]
+    if ok and settled:
+        rel, absolute = COST_TOLERANCE
+        ok = (
+            r["max_trace_difference"] <= r["trace_tolerance"]
+            and abs(r["cost"] - r["reference_cost"]) <= rel * r["reference_cost"] + absolute
+        )
+    elif ok and not r["reference_diverged"]:
+        ok = (min(r["cost"], r["reference_cost"]) >= COST_CAP
+              or abs(r["cost"] - r["reference_cost"]) <= UNSETTLED_COST_TOLERANCE
+              * r["reference_cost"])  # fmt: skip
+    return {**r, "settled": settled, "ok": ok}
+
+
 def summarize() -> None:
-    rows = [json.loads(line) for line in RESULTS.read_text().splitlines()]
+    rows = [rejudge(json.loads(line)) for line in RESULTS.read_text().splitlines()]
     kinds: dict[str, list[dict]] = {}
     for r in rows:
         kinds.setdefault(r["label"].split()[0], []).append(r)
     print(f"{'kind':10s} {'sets':>5s} {'agree':>6s} {'settled':>8s} {'max d (settled)':>16s} "
           f"{'same verdict':>13s}")  # fmt: skip
+    for r in rows:
+        if not r["ok"]:
+            print(f"  disagrees: {r['label']}: d {r['max_trace_difference']} cost {r['cost']:.4g} "
+                  f"ref {r['reference_cost']:.4g} diverged {r['diverged']} ref "
+                  f"{r['reference_diverged']}")  # fmt: skip
     for kind, rs in kinds.items():
         settled = [r for r in rs if r["settled"]]
         dmax = max((r["max_trace_difference"] for r in settled), default=0)

@@ -106,6 +106,9 @@ def test_the_rule_by_hand():
     # a different verdict never agrees
     assert "verdict" in compare(_evaluation(1.0, diverged=True), ref).why
     # not settled: only the cost, within 10 % or both at the cap
+    # settled but poorly damped (cost 10 or more): the cost rule
+    slow = _evaluation(40.0, trace=(0, 100, 200))
+    assert compare(_evaluation(41.0, trace=(0, 400, 200)), slow).ok
     osc = _evaluation(50.0, settled=False, trace=(0, 4000, -4000))
     assert compare(_evaluation(54.9, settled=False, trace=(0, -4000, 4000)), osc).ok
     assert not compare(_evaluation(55.1, settled=False), osc).ok
