@@ -4,13 +4,14 @@ docs/simulation.md ("Integration") states the rule this module implements:
 
 * both runs reach the same divergence verdict;
 * a set whose reference response settles and is well damped (every move settled, cost
-  below :data:`WELL_DAMPED_COST`) keeps its encoder trace within :data:`TRACE_TOLERANCE_COUNTS` counts of the reference, or
-  :data:`TRACE_TOLERANCE_FRACTION` of the reference's peak following error if that is more,
-  and its cost within :data:`COST_TOLERANCE`;
+  below :data:`WELL_DAMPED_COST`) keeps its encoder trace within
+  :data:`TRACE_TOLERANCE_COUNTS` counts of the reference, or :data:`TRACE_TOLERANCE_FRACTION`
+  of the reference's peak following error if that is more, and its cost within
+  :data:`COST_TOLERANCE`;
 * any other set (a slowly decaying or sustained oscillation, a limit cycle) keeps its cost
   within :data:`UNSETTLED_COST_TOLERANCE` (both at the cap counts as agreement): its
-  trajectory is chaotic at the count level, the reference itself at 32 and 128 substeps disagrees there by
-  thousands of counts, so no trace tolerance can be stated for it.
+  trajectory is chaotic at the count level, the reference itself at 32 and 128 substeps
+  disagrees there by thousands of counts, so no trace tolerance can be stated for it.
 
 The sets it is applied to: per chip model and plant family, at the chip's default servo period
 and the slowest one its docs call usable (:func:`period_settings`), a safe set tuned there (the
