@@ -447,8 +447,9 @@ class ModelBasedTuner(Tuner):
     (inertia), Coulomb and viscous friction, and the gravity holding command. The PID
     places the closed-loop poles at ``(s + w)^3`` (``p = 3w^2/g``, ``d = 3w/g``,
     ``i = w^3/g``), the derivative sampled at most every ``1/(4w)`` to quiet encoder
-    quantization; bias = gravity, Kvff = viscous friction, Kaff = inertia. Five bandwidths
-    ``w = 1/(6.5 Ts) * 2^-k``, k = 0..4, are candidates; the best is kept.
+    quantization; bias = gravity, Kvff = viscous friction, Kaff = inertia. Seven bandwidths
+    ``w = 1/(6.5 Ts) * 2^-k``, k = 0..6, are candidates (the lowest keep the loop below a
+    resonance, for the margins); the best is kept.
     """
 
     name = "model-based"
@@ -483,7 +484,7 @@ class ModelBasedTuner(Tuner):
         g = model["accel_gain"]
         w0 = 1.0 / (6.5 * ctx.dt)
         designs = []
-        for k in range(5):
+        for k in range(7):
             w = w0 / 2**k
             d = 3 * w / g
             quantum = 0.01 * FULL_SCALE  # largest command step one count of D may cause

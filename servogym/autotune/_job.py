@@ -319,9 +319,9 @@ def tune(
     return result, summary
 
 
-DESIGN_BUDGET = 7
+DESIGN_BUDGET = 9
 """Simulations of the model-based design a default tune starts from (2 identification
-moves and 5 candidate bandwidths)."""
+moves and 7 candidate bandwidths)."""
 
 
 def design_start(problem: TuneProblem, config: TuneConfig) -> dict[str, Any]:
@@ -358,23 +358,29 @@ def check_candidates(result: StudyResult, config: TuneConfig) -> tuple[StudyResu
     """
     problem = result.problem
     extra = problem.plant_instances() if problem.n_plants > 1 else ()
+    limits = config.check_limits()
+
+    def margins_ok(t: Any) -> bool:
+        o = t.user_attrs.get("outcome", {})
+        gm, pm = o.get("gain_margin_db"), o.get("phase_margin_deg")
+        return not (
+            (gm is not None and gm < limits.min_gain_margin_db)
+            or (pm is not None and pm < limits.min_phase_margin_deg)
+        )
+
     candidates = [result.best]
     if not problem.multi_objective:
+        # Sets whose margins held during tuning first, then the feasible, then by cost: a
+        # set that misses a performance constraint but is safe beats one that is not.
         ranked = sorted(
             (t for t in scored_trials(result.trials) if t.number != result.best.number),
-            key=lambda t: (not is_feasible(t), t.values[0]),
+            key=lambda t: (not margins_ok(t), not is_feasible(t), t.values[0]),
         )
         candidates += ranked[: config.check_candidates - 1]
-    limits = config.check_limits()
     first = None
     checked = []
     for i, trial in enumerate(candidates):
-        outcome = trial.user_attrs.get("outcome", {})
-        gm, pm = outcome.get("gain_margin_db"), outcome.get("phase_margin_deg")
-        short = (gm is not None and gm < limits.min_gain_margin_db) or (
-            pm is not None and pm < limits.min_phase_margin_deg
-        )
-        if i > 0 and short:  # its margins fail already: no need to simulate it
+        if i > 0 and not margins_ok(trial):  # its margins failed already: no need to simulate
             checked.append({"trial": trial.number, "passed": False,
                             "failures": ["margins below the minima during tuning"]})  # fmt: skip
             continue
