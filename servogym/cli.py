@@ -155,7 +155,14 @@ def simulate(
             "(rad or m); repeatable, run in sequence. Default: the plant's out-and-back moves."
         ),
     ] = None,
-    substeps: Annotated[int, typer.Option(help="mj_step calls per servo tick.")] = 1,
+    substeps: Annotated[
+        int | None,
+        typer.Option(help="RK4 substeps per servo tick [default: ceil(period / 160 us)]."),
+    ] = None,
+    reference: Annotated[
+        bool,
+        typer.Option("--reference", help="Use the fine reference integration (RK4 x 32)."),
+    ] = False,
     out: Annotated[Path, typer.Option(help="Folder for response.png and metrics.json.")] = Path(
         "runs/simulate"
     ),
@@ -164,7 +171,7 @@ def simulate(
     """Simulate a chip axis on a plant along moves; print metrics, write a response plot."""
     from servogym.chips import ParameterError, family_of, load_params_file
     from servogym.plants import PlantParameterError
-    from servogym.sim import Evaluator, MoveSpec, Scenario
+    from servogym.sim import REFERENCE_SUBSTEPS, Evaluator, MoveSpec, Scenario
     from servogym.sim._plot import plot_response
 
     try:
@@ -185,7 +192,7 @@ def simulate(
             moves.append(MoveSpec(*parts))
         scenario = Scenario(
             model, plant, plant_values=_key_values(plant_param, "--plant-param"),
-            moves=tuple(moves), substeps=substeps,
+            moves=tuple(moves), substeps=REFERENCE_SUBSTEPS if reference else substeps,
             assumptions=loaded.assumptions if loaded else None,
         )  # fmt: skip
         chip_params = loaded.params if loaded else scenario.default_params()
