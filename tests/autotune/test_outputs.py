@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from servogym.autotune import TuneConfig, read_param_file, run_study, tune
 from servogym.autotune._cli import tune_command
+from servogym.autotune._problem import MARGIN_CONSTRAINT_BOUND
 from servogym.autotune._report import export_names
 from servogym.chips._family import get_chip
 from servogym.sim import Evaluator
@@ -114,11 +115,22 @@ def test_constraints_are_reported_to_optuna_and_decide_the_best_trial():
     problem = short_problem(seed=1)
     result = run_study(problem, "random", 12, storage=None, batch_size=4)
     fe_limit = problem.following_error_limit(Evaluator(problem.scenario))
+    limits = problem.constraints
+    assert (limits.min_gain_margin_db, limits.min_phase_margin_deg) == (6.0, 30.0)
+    bound = MARGIN_CONSTRAINT_BOUND
     for t in result.trials:
         c = t.constraints
-        assert set(c) == {"max_following_error", "saturation_fraction", "diverged"}
-        assert c["max_following_error"] == t.user_attrs["outcome"]["max_following_error"] - fe_limit
+        # The margin constraints (issue 13) are on by default, beside the three of the episode.
+        assert set(c) == {"max_following_error", "saturation_fraction", "diverged",
+                          "gain_margin", "phase_margin"}  # fmt: skip
+        outcome = t.user_attrs["outcome"]
+        assert c["max_following_error"] == outcome["max_following_error"] - fe_limit
+        for name, minimum in (("gain_margin", 6.0), ("phase_margin", 30.0)):
+            margin = outcome[f"{name}_{'db' if name == 'gain_margin' else 'deg'}"]
+            expected = -bound if margin is None else min(max(minimum - margin, -bound), bound)
+            assert c[name] == expected, (name, margin)
     assert all(v <= 0 for v in result.best.constraints.values())
+    assert result.feasible
 
 
 @pytest.fixture()
