@@ -112,8 +112,17 @@ def test_multi_objective_keeps_a_pareto_front(tmp_path):
     assert front and result.best.number in {p["trial"] for p in front}
 
 
-SAFE_SHORT_ROTARY = {"kp": 469, "ki": 10, "kd": 3261, "kvff": 4, "kaff": 6, "kout": 21409,
-                     "integration_limit": 383, "derivative_time": 1, "bias": 733}
+SAFE_SHORT_ROTARY = {
+    "kp": 469,
+    "ki": 10,
+    "kd": 3261,
+    "kvff": 4,
+    "kaff": 6,
+    "kout": 21409,
+    "integration_limit": 383,
+    "derivative_time": 1,
+    "bias": 733,
+}
 """A set that meets every constraint of ``short_problem()`` under the issue-13 loop, margins
 included: cost 3.91, following error 46 of 209 counts, no saturation, gain margin 7.9 dB,
 phase margin 31.2 degrees. Found by a 300-trial multivariate TPE study (seed 0) minimising
