@@ -298,6 +298,10 @@ def _relay_measure(traces: Any, dt: float) -> dict[str, Any]:
     }
 
 
+MAX_PID_LEAD_DEG = 80.0
+"""Largest phase lead (degrees) the Astrom-Hagglund rule asks of the PID."""
+
+
 def astrom_hagglund(
     w: float, gain: float, phase_deg: float, phase_margin_deg: float = 45.0, alpha: float = 4.0
 ) -> tuple[float, float, float]:
@@ -307,10 +311,15 @@ def astrom_hagglund(
     the rule of Astrom and Hagglund (PID Controllers, 1995, sec. 4.7): the controller
     ``p * (1 + 1/(Ti s) + Td s)`` with ``Ti = alpha * Td`` must add ``phase_margin - phi_b``
     of phase at ``w``, where ``G = gain * exp(j(pi + phi_b))``, and have gain ``1/|G|``.
-    ``phi_b`` is clipped to [-60, 0] degrees (a rigid axis with a small delay).
+    ``phi_b`` is clipped to [-60, 0] degrees (a rigid axis with a small delay), and further so
+    that the lead stays at most :data:`MAX_PID_LEAD_DEG`: a PID adds less than 90 degrees,
+    and at a lead of 90 or more the rule's ``cos(lead)`` would make every gain negative (a
+    relay point lagged by the loop latency, issue 13). The loop then crosses at ``w`` with
+    less than the margin; the relay tuner's detuned candidates cross lower.
     """
     phi_b = math.radians(phase_deg) % (2 * math.pi) - math.pi
-    phi_b = min(0.0, max(math.radians(-60.0), phi_b))
+    floor = max(-60.0, phase_margin_deg - MAX_PID_LEAD_DEG)
+    phi_b = min(0.0, max(math.radians(floor), phi_b))
     lead = math.radians(phase_margin_deg) - phi_b
     tan = math.tan(lead)
     x = (tan + math.sqrt(tan * tan + 4.0 / alpha)) / 2.0  # x - 1/(alpha x) = tan

@@ -7,6 +7,7 @@ import math
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import optuna
 import pytest
@@ -23,16 +24,23 @@ from servogym.autotune.bench import (
     pack_results,
     plan_jobs,
     run_jobs,
+    superseded_note,
     write_report,
 )
 from servogym.autotune.bench._report import SUMMARY_COLUMNS
 from servogym.chips import ParameterError
+from servogym.chips.parker6k import SPEC_VERSION as PARKER6K_SPEC
+from servogym.chips.pmd._params import SPEC_VERSION as PMD_SPEC
 
 SUITE = get_suite()
 FAST_ID = "servobench-v0/mc2100/rotary/light/fast"
-PARAMS = {"kp": 2640, "ki": 180, "kd": 15620, "kvff": 34, "kaff": 102, "kout": 5950,
-          "integration_limit": 2, "derivative_time": 8274, "bias": -2500}  # fmt: skip
-"""A good set on FAST_ID (cost about 1.35)."""
+PARAMS = {"kp": 8800, "ki": 70, "kd": 15741, "kvff": 729, "kaff": 140, "kout": 708,
+          "integration_limit": 2067, "derivative_time": 1, "bias": -238}  # fmt: skip
+"""A good, safe set on FAST_ID under the issue-13 loop (cost 1.356; the chip defaults 100).
+
+Found by a 250-trial multivariate TPE study (seed 0) on FAST_ID's unit cube, minimising
+``inst.evaluate``, then a 250-trial CMA-ES (seed 0, sigma 0.1) from its best. The set before
+issue 13 (kp 2640, kd 15620, kout 5950 ..., cost 1.35 on the old tick) scores 100 now."""
 
 
 def test_suite_has_train_and_heldout_splits_with_unique_stable_ids():
@@ -207,11 +215,40 @@ def test_best_known_data_file_covers_every_instance_with_provenance():
         assert inst.best_known == rec["cost"]
 
 
+def test_servobench_v0_is_marked_superseded_by_the_loop_timing_change():
+    # servobench-v0's best-known costs were measured on the old tick (one implicitfast
+    # mj_step per servo period, half a period ahead of the plant, no loop latency): issue 13
+    # changed the loop, so they no longer reproduce. The file says so, in every record too.
+    data = load_reference()
+    note = data["superseded"]
+    assert note == superseded_note(SUITE_VERSION)
+    assert "issue 13" in note["by"] and "half a period ahead of the plant" in note["reason"]
+    assert "rebuild is a separate issue" in note["reason"]
+    assert note["measured_on"] == {"integrator": "euler (one implicitfast mj_step per tick)",
+                                   "loop_latency": "same_tick"}  # fmt: skip
+    # The stored provenance shows it: the chip specs before the loop-latency assumption.
+    assert data["versions"]["pmd_spec"] == "pmd-spec-1" != PMD_SPEC
+    assert data["versions"]["parker6k_spec"] == "parker6k-spec-1" != PARKER6K_SPEC
+    assert all(rec["superseded"] == note for rec in load_best_known().values())
+    assert SUITE.instance(FAST_ID).best_known_record["superseded"] == note
+    doc = (Path(__file__).parents[2] / "docs" / "benchmark.md").read_text()
+    assert "superseded by the loop-timing change of issue 13" in " ".join(doc.split())
+
+
 @pytest.mark.parametrize("instance_id", SUITE.ids("all")[::6])
-def test_best_known_values_reproduce_the_cost(instance_id):
+def test_best_known_values_are_legal_register_sets_of_their_chip(instance_id):
+    # Formerly: the stored values reproduce the stored cost exactly. That held on the old
+    # tick only (servobench-v0 is superseded, see the test above), so the data it asserted is
+    # now invalid; what still holds is that every stored set is a legal register set of its
+    # chip that the instance evaluates to a finite cost, deterministically.
     inst = SUITE.instance(instance_id)
     rec = inst.best_known_record
-    assert inst.evaluate(rec["values"]) == rec["cost"]
+    assert set(rec["values"]) == set(inst.space)
+    for name, value in rec["values"].items():
+        spec = inst.space[name]
+        assert isinstance(value, int) and spec.low <= value <= spec.high, (name, value)
+    cost = inst.evaluate(rec["values"])
+    assert math.isfinite(cost) and cost >= 0 and inst.evaluate(rec["values"]) == cost
 
 
 def test_report_leaves_an_instance_without_a_safe_best_known_out_of_the_figures(tmp_path):
@@ -225,18 +262,30 @@ def test_report_leaves_an_instance_without_a_safe_best_known_out_of_the_figures(
     assert all(r["n_runs"] == 0 for r in summary["rows"])
 
 
-def test_stage2_refinement_keeps_provenance_and_reproducible_values(tmp_path):
+def test_stage2_refinement_keeps_provenance_and_the_superseded_note(tmp_path):
+    """Stage 2 over the superseded servobench-v0 file.
+
+    Formerly this test also asserted that the tiny TPE run seeds a refinement of FAST_ID
+    whose cost is at most the stored one and reproduces. Both rested on old-tick data: on
+    the present loop (issue 13) that run finds no safe set on FAST_ID (so nothing seeds
+    stage 2), and a refined cost could only be compared with a cost measured on another
+    simulation. What still holds: the provenance entry is written, only instances with a
+    safe seed are refined, records are left as they were, and the superseded note survives.
+    """
     from servogym.autotune.bench import data_path, refine_from_runs
 
     path = tmp_path / "ref.json"
     path.write_text(data_path().read_text())
+    before = json.loads(data_path().read_text())
     jobs = [j for j in _tiny_jobs() if j.tuner == "tpe" and j.seed == 0]
     run_jobs(jobs, tmp_path / "runs")
-    doc = refine_from_runs(SUITE_VERSION, load_results(tmp_path / "runs"), path, n_trials=8,
-                           run_label="tiny")  # fmt: skip
+    runs = load_results(tmp_path / "runs")
+    safe = sorted({r["instance"] for r in runs if r.get("best_feasible")})
+    doc = refine_from_runs(SUITE_VERSION, runs, path, n_trials=8, run_label="tiny")
     stage2 = doc["method"]["stage2"]
-    assert stage2["instances_refined"] == [FAST_ID] and stage2["seeded_from"] == "tiny"
-    rec = doc["instances"][FAST_ID]
-    before = json.loads(data_path().read_text())["instances"][FAST_ID]["cost"]
-    assert rec["cost"] <= before
-    assert SUITE.instance(FAST_ID).evaluate(rec["values"]) == rec["cost"]
+    assert stage2["seeded_from"] == "tiny" and stage2["n_trials"] == 8
+    assert stage2["instances_refined"] == safe == []
+    assert stage2["instances_improved"] == []
+    assert doc["instances"] == before["instances"]
+    assert doc["superseded"] == before["superseded"] == superseded_note(SUITE_VERSION)
+    assert json.loads(path.read_text()) == doc

@@ -17,6 +17,7 @@ from servogym.autotune import (
     gain_map_for,
     identify_rigid_axis,
 )
+from servogym.autotune._classical import MAX_PID_LEAD_DEG
 from servogym.chips._family import families
 from servogym.chips.pmd import PMDAssumptions, PMDParams
 
@@ -86,6 +87,20 @@ def test_the_astrom_hagglund_rule_puts_the_loop_on_the_unit_circle_with_the_marg
     assert abs(loop) == pytest.approx(1.0, rel=1e-9)
     assert math.degrees(cmath.phase(loop)) == pytest.approx(-180 + 45, abs=1e-6)
     assert d / p == pytest.approx(4 * p / i / 16, rel=1e-9)  # Ti = 4 Td
+
+
+def test_the_astrom_hagglund_rule_keeps_positive_gains_when_the_point_lags_too_much():
+    # A relay point lagged by the loop latency (issue 13: 6250's relay oscillation measured
+    # phase +112.8 deg = -247.2 deg, gain 4.26e-4 at 781 Hz). Clipping phi_b at -60 deg asked
+    # the PID for 105 deg of lead; cos(105 deg) < 0 made every gain negative (and the
+    # registers 0). The lead is now capped at MAX_PID_LEAD_DEG.
+    w, gain, phase = 2 * math.pi * 781.25, 4.26e-4, 112.8
+    p, i, d = astrom_hagglund(w, gain, phase, 45.0)
+    assert p > 0 and i > 0 and d > 0
+    gjw = gain * cmath.exp(1j * math.radians(phase))
+    lead = math.degrees(cmath.phase(p + i / (1j * w) + d * 1j * w))
+    assert lead == pytest.approx(MAX_PID_LEAD_DEG, abs=1e-6)
+    assert abs((p + i / (1j * w) + d * 1j * w) * gjw) == pytest.approx(1.0, rel=1e-9)
 
 
 def test_identification_recovers_a_known_rigid_axis():

@@ -21,6 +21,7 @@ from servogym.autotune.bench._reference import (
     reference_search,
     refine_from_runs,
     run_reference,
+    superseded_note,
 )
 from servogym.autotune.bench._report import TARGET_EPS, Run, summarize, write_report
 from servogym.autotune.bench._runner import (
@@ -73,5 +74,6 @@ __all__ = [
     "run_jobs",
     "run_reference",
     "summarize",
+    "superseded_note",
     "write_report",
 ]

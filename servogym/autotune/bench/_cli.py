@@ -79,6 +79,7 @@ def benchmark_command(
         load_best_known,
         refine_from_runs,
         run_reference,
+        superseded_note,
     )
     from servogym.autotune.bench._report import write_report
     from servogym.autotune.bench._runner import (
@@ -189,6 +190,9 @@ def benchmark_command(
     for name, lim in limits.items():
         notes.append(f"{name} reduced: " + ", ".join(
             f"{k}={v}" for k, v in vars(lim).items() if v is not None) + ".")  # fmt: skip
+    superseded = superseded_note(suite)
+    if superseded is not None:
+        notes.append(f"The best-known costs of {suite} are superseded: {superseded['reason']}.")
     summary = write_report(records, out, best_known=load_best_known(suite), budgets=budgets,
                            tuners=tuner_list, instances=ids, skipped=skipped,
                            notes=notes)  # fmt: skip
