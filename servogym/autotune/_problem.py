@@ -221,6 +221,9 @@ class TuneProblem:
             )
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ParameterError(f"seed must be an integer >= 0; got seed={self.seed!r}.")
+        if self.constraints.margins and not self.scenario.margins:
+            # margin constraints need every evaluation to compute the margins
+            object.__setattr__(self, "scenario", dataclasses.replace(self.scenario, margins=True))
 
     @property
     def multi_objective(self) -> bool:

@@ -23,8 +23,9 @@ def short_problem(
     names: tuple[str, ...] | None = None,
     objectives: tuple[str, ...] = ("cost",),
     constraints: bool = True,
+    margins: bool = True,
 ) -> TuneProblem:
-    """A tuning problem on short moves."""
+    """A tuning problem on short moves (``margins=False``: no margin constraints)."""
     scenario = Scenario(chip, plant, moves=SHORT_MOVES[plant])
     return TuneProblem(
         scenario=scenario,
@@ -32,7 +33,9 @@ def short_problem(
         n_plants=n_plants,
         robust_mode=robust_mode,
         objectives=objectives,
-        constraints=Constraints(enabled=constraints),
+        constraints=Constraints(enabled=constraints)
+        if margins
+        else Constraints(enabled=constraints, min_gain_margin_db=None, min_phase_margin_deg=None),
         seed=seed,
     )
 
