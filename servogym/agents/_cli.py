@@ -10,12 +10,13 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from servogym._cli_common import fail
+
 console = Console()
 
 
 def _fail(message: str) -> None:
-    console.print(f"[red]error:[/red] {message}", highlight=False)
-    raise typer.Exit(code=2)
+    fail(message)
 
 
 def _json_option(text: str | None, name: str) -> dict[str, Any]:
@@ -125,14 +126,20 @@ def evaluate_command(
             _fail(f"--model {str(model)!r} does not exist.")
         cfg = model.parent / "config.json"
         if cfg.exists():
-            config = json.loads(cfg.read_text())
-            env = env or config["env_id"]
-            kwargs.update(config.get("env_kwargs", {}))
+            try:
+                config = json.loads(cfg.read_text())
+                env = env or config["env_id"]
+                kwargs.update(config.get("env_kwargs", {}))
+            except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+                _fail(f"--model {str(model)!r}: its config.json cannot be read: {exc!r}.")
     if env is None:
         _fail("give --env, or a --model whose run directory has a config.json")
     _check_env_id(env)
     kwargs.update(_json_option(env_kwargs, "--env-kwargs"))
-    e = gym.make(env, **kwargs)
+    try:
+        e = gym.make(env, **kwargs)
+    except (ValueError, TypeError, KeyError) as exc:
+        _fail(f"--env-kwargs {json.dumps(kwargs)}: {exc}")
     extra = {}
     if fixed is not None:
         extra["best fixed set"] = _fixed_values(fixed, e.unwrapped.scenario.chip_model)
@@ -140,8 +147,14 @@ def evaluate_command(
     if model is not None:
         from servogym.agents._train import load_policy
 
-        policies["policy"] = load_policy(model)
-    policies.update(baseline_policies(e, extra))
+        try:
+            policies["policy"] = load_policy(model)
+        except ValueError as exc:
+            _fail(str(exc))
+    try:
+        policies.update(baseline_policies(e, extra))
+    except ValueError as exc:
+        _fail(f"--fixed {str(fixed)!r}: {exc}")
     seeds = range(seed, seed + episodes)
     results = {name: summarize(run_episodes(e, p, seeds)) for name, p in policies.items()}
     if as_json:
@@ -160,25 +173,28 @@ def evaluate_command(
 
 
 def _fixed_values(path: Path, chip_model: str) -> dict[str, Any]:
-    """Register values of a --fixed file: a servogym parameter file or a plain JSON object."""
-    from servogym.chips import ParameterError, load_params_file
+    """Register values of a --fixed file: a parameter file in any format servogym writes,
+    or a plain JSON object of register values."""
+    from servogym.chips import ParameterError, read_params_file
+    from servogym.chips._paramfile import strict_json
 
     try:
         text = path.read_text()
-        doc = json.loads(text)
-    except (OSError, json.JSONDecodeError) as exc:
-        _fail(f"--fixed {str(path)!r} is not a readable JSON file: {exc}")
-    if isinstance(doc, dict) and "chip_family" in doc:
-        try:
-            params = load_params_file(text).params
-        except ParameterError as exc:
-            _fail(f"--fixed {str(path)!r}: {exc}")
-        if params.model != chip_model:
-            _fail(
-                f"--fixed {str(path)!r} is a {params.model} parameter set; the env runs "
-                f'{chip_model} (pass --env-kwargs \'{{"chip_model": "{params.model}"}}\').'
-            )
-        return params.to_dict()
-    if not isinstance(doc, dict):
-        _fail(f"--fixed {str(path)!r} must hold a JSON object of register values.")
-    return doc
+    except (OSError, UnicodeDecodeError) as exc:
+        _fail(f"--fixed {str(path)!r} cannot be read: {getattr(exc, 'strerror', None) or exc}.")
+    try:
+        doc = strict_json(text) if text.lstrip().startswith("{") else None
+    except ValueError as exc:
+        _fail(f"--fixed {str(path)!r}: {exc}")
+    if isinstance(doc, dict) and "format" not in doc:
+        return doc  # register values only; the env validates them
+    try:
+        params = read_params_file(path, what="--fixed").params
+    except ParameterError as exc:
+        _fail(str(exc))
+    if params.model != chip_model:
+        _fail(
+            f"--fixed {str(path)!r} is a {params.model} parameter set; the env runs "
+            f'{chip_model} (pass --env-kwargs \'{{"chip_model": "{params.model}"}}\').'
+        )
+    return {k: v for k, v in params.to_dict().items() if k != "model"}

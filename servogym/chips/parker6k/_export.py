@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from servogym import __version__
+from servogym._files import seal, unseal
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
@@ -36,7 +37,6 @@ from servogym.chips._paramfile import (
     assumption_lines,
     check_format,
 )
-from servogym._files import seal, unseal
 from servogym.chips._space import ParameterError
 from servogym.chips.parker6k._params import (
     CHIP_MODELS,

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from servogym import __version__
+from servogym._files import seal, unseal
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
@@ -34,7 +35,6 @@ from servogym.chips._paramfile import (
     assumption_lines,
     check_format,
 )
-from servogym._files import seal, unseal
 from servogym.chips._space import ParameterError
 from servogym.chips.pmac._params import (
     CHIP_MODELS,
