@@ -223,7 +223,14 @@ def simulate(
                     f"--move {text!r}."
                 )
             names = ("DISTANCE", "MAX_VELOCITY", "MAX_ACCELERATION", "SETTLE_S")
-            moves.append(MoveSpec(*(_finite(x, "--move", n) for x, n in zip(fields, names))))
+            moves.append(
+                MoveSpec(
+                    *(
+                        _finite(x, "--move", n)
+                        for x, n in zip(fields, names[: len(fields)], strict=True)
+                    )
+                )
+            )
         scenario = Scenario(
             model, plant, plant_values=_key_values(plant_param, "--plant-param"),
             moves=tuple(moves), substeps=substeps,

@@ -339,7 +339,7 @@ def test_ivar_import_model_disagreement_and_duplicates_that_agree():
     text = to_ivar(PMACParams(model="GeoBrickLV"))
     with pytest.raises(ParameterError, match="disagrees with the file's header"):
         from_ivar(text, "TurboPMAC2")
-    with pytest.raises(ParameterError, match="end line .* is not the last line"):
+    with pytest.raises(ParameterError, match=r"end line .* is not the last line"):
         from_ivar(text + "I130=2000\n")
     assert from_ivar(_hand_written(text) + "I130=2000\n") == PMACParams(model="GeoBrickLV")
 
