@@ -303,7 +303,7 @@ def _commit(folder: Path, manifest: Mapping[str, Any]) -> None:
     _fsync_dir(folder)
 
 
-_TEMP = re.compile(r"^\..+\.[0-9a-f]{12}\.tmp$")
+_TEMP = re.compile(r"^\..+\.(?:[0-9a-f]{12}|[a-z0-9_]{8})\.tmp$")  # ours and mkstemp's
 
 
 def recover_file_set(folder: str | Path) -> str:

@@ -94,16 +94,29 @@ def tune_command(
     """Tune a chip's parameters on a simulated plant and write the tuned set with reports."""
     from rich.console import Console
 
+    from servogym._cli_common import check_count, check_number, fail
+    from servogym._files import MANIFEST, PENDING, FileSafetyError
     from servogym.autotune._job import TuneConfig, parse_fix, parse_plant_params, tune
     from servogym.autotune._session import TuneError
     from servogym.autotune._tuners import tuner_names
     from servogym.chips._space import ParameterError
 
     console = Console()
-
-    def fail(message: str) -> None:
-        console.print(f"[red]error:[/red] {message}", highlight=False)
-        raise typer.Exit(code=2)
+    check_count("--budget", budget)
+    check_count("--workers", workers)
+    check_count("--robust", robust)
+    check_count("--batch-size", batch_size)
+    check_count("--seed", seed, low=0)
+    check_number("--max-following-error", max_following_error, low=0, low_open=True)
+    check_number("--max-saturation", max_saturation, low=0, high=1)
+    if out.exists() and not out.is_dir():
+        fail(f"--out {str(out)!r} is a file; give a folder for the run's outputs.")
+    previous = [n for n in (MANIFEST, PENDING, "study.db") if (out / n).exists()]
+    if previous and not resume:
+        fail(
+            f"--out {str(out)!r} already holds a tune run ({', '.join(previous)}); pass "
+            f"--resume to continue its study, or choose another --out."
+        )
 
     try:
         if tuner not in tuner_names():
@@ -171,8 +184,18 @@ def tune_command(
             f"the same command and --resume (out={out})."
         )
         raise typer.Exit(code=130) from None
-    except (TuneError, ParameterError, KeyError, ValueError) as exc:
+    except (TuneError, ParameterError, FileSafetyError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
+        return
+    except OSError as exc:
+        fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
+        return
+    except Exception as exc:  # storage drivers: SQLAlchemy and Optuna errors
+        if type(exc).__module__.split(".")[0] not in ("sqlalchemy", "optuna", "sqlite3"):
+            raise
+        where = storage or f"{out / 'study.db'}"
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        fail(f"--storage {where!r} cannot be used as an Optuna study: {first[:200]}")
         return
     console.print(summary_heading(summary), highlight=False)
     console.print(summary_table(summary))

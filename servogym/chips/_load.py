@@ -200,4 +200,4 @@ def read_params_file(
         check_against_manifest(path)
         return load_params_file(text, fmt, model, axis)
     except ParameterError as exc:
-        raise ParameterError(f"{what} {str(path)!r}: {exc}") from None
+        raise type(exc)(f"{what} {str(path)!r}: {exc}") from None

@@ -26,7 +26,6 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from servogym import __version__
-from servogym._files import json_checksum
 from servogym.chips._space import ParameterError
 
 FILE_FORMAT = "servogym-params"
@@ -210,6 +209,8 @@ class FileSchema:
             doc["metrics"] = json_object(metrics, "metrics")
         if notes is not None:
             doc["notes"] = json_object(notes, "notes")
+        from servogym._files import json_checksum  # servogym._files imports chips
+
         doc["checksum"] = json_checksum(doc)
         return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
@@ -444,6 +445,8 @@ def created_text(created: str | _dt.datetime | None) -> str:
 
 def verify_checksum(doc: Mapping[str, Any]) -> None:
     """Check a document's ``checksum`` entry, when it has one, against the rest of it."""
+    from servogym._files import json_checksum  # servogym._files imports chips
+
     if "checksum" not in doc:
         return
     given = doc["checksum"]
