@@ -4,16 +4,61 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
 from rich.table import Table
+from typer.core import TyperGroup
 
 from servogym._cli_common import fail
 
+
+class _Group(TyperGroup):
+    """The app's command group: a bad option value's message also shows the value given.
+
+    Typer's type errors name the option but not the value (``Invalid value for '--budget':
+    Input should be a valid integer``); this adds ``; got --budget 'x'`` from the command
+    line, so every bad-input message names the parameter and the value.
+    """
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        argv = list(sys.argv[1:] if args is None else args)
+        if not standalone_mode:
+            return super().main(argv, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(argv, prog_name, complete_var, False, **extra)
+        except typer.BadParameter as exc:
+            given = _given(argv, getattr(exc.param, "opts", []) or [])
+            if given is not None and repr(given[1]) not in exc.message:
+                exc.message = f"{exc.message.rstrip('.')}; got {given[0]} {given[1]!r}."
+            exc.show()
+            sys.exit(exc.exit_code)
+        except typer.TyperException as exc:  # click's UsageError and the like
+            exc.show()  # type: ignore[attr-defined]
+            sys.exit(getattr(exc, "exit_code", 2))
+        except typer.Abort:
+            typer.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+def _given(argv: list[str], opts: list[str]) -> tuple[str, str] | None:
+    """The last value given on the command line for an option (``--budget x``, ``--budget=x``)."""
+    found = None
+    for i, arg in enumerate(argv):
+        for opt in opts:
+            if arg == opt and i + 1 < len(argv):
+                found = (opt, argv[i + 1])
+            elif opt.startswith("--") and arg.startswith(opt + "="):
+                found = (opt, arg[len(opt) + 1 :])
+    return found
+
+
 app = typer.Typer(
+    cls=_Group,
     help="Tune real motion-controller chips in simulation: exact chip filters on MuJoCo plants.",
     no_args_is_help=True,
     add_completion=False,
