@@ -268,14 +268,13 @@ def simulate(
                     f"--move {text!r}."
                 )
             names = ("DISTANCE", "MAX_VELOCITY", "MAX_ACCELERATION", "SETTLE_S")
-            moves.append(
-                MoveSpec(
-                    *(
-                        _finite(x, "--move", n)
-                        for x, n in zip(fields, names[: len(fields)], strict=True)
-                    )
-                )
-            )
+            parts = [_finite(x, "--move", n) for x, n in zip(fields, names, strict=False)]
+            for n, value in zip(names[1:], parts[1:], strict=False):
+                low_ok = value >= 0 if n == "SETTLE_S" else value > 0
+                if not low_ok:
+                    rule = ">= 0" if n == "SETTLE_S" else "> 0"
+                    _fail(f"--move {n} must be {rule}; got {n}={value:g} in --move {text!r}.")
+            moves.append(MoveSpec(*parts))
         scenario = Scenario(
             model, plant, plant_values=_key_values(plant_param, "--plant-param"),
             moves=tuple(moves), substeps=substeps,

@@ -67,24 +67,70 @@ def train_command(
     ),
 ) -> None:
     """Train an SB3 agent on a servogym env, with a progress bar, checkpoints and TensorBoard."""
-    from servogym.agents._train import ALGOS, train
+    from servogym._cli_common import check_count, check_number
+    from servogym.agents._train import ALGOS
 
     if algo.lower() not in ALGOS:
         _fail(f"--algo must be one of {', '.join(ALGOS)}; got --algo {algo!r}.")
     _check_env_id(env)
-    path = train(
+    check_count("--seed", seed, low=0)
+    check_number("--minutes", minutes, low=0, low_open=True)
+    if out.exists() and not out.is_dir():
+        _fail(f"--out {str(out)!r} is a file; give a folder for the run.")
+    env_kw = _json_option(env_kwargs, "--env-kwargs")
+    algo_kw = _json_option(algo_kwargs, "--algo-kwargs")
+    _check_env_kwargs(env, env_kw)
+    _check_algo_kwargs(algo, algo_kw)
+    try:
+        path = _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes,
+                      checkpoint_every)  # fmt: skip
+    except (TypeError, ValueError) as exc:
+        _fail(f"--algo-kwargs {json.dumps(algo_kw)}: {exc}")
+    except OSError as exc:
+        _fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
+    console.print(f"saved {path}")
+
+
+def _check_env_kwargs(env: str, kwargs: dict[str, Any]) -> None:
+    """Build the env once in this process, so a bad keyword fails before any worker starts."""
+    import gymnasium as gym
+
+    try:
+        gym.make(env, **kwargs).close()
+    except (TypeError, ValueError, KeyError) as exc:
+        _fail(f"--env-kwargs {json.dumps(kwargs)}: {str(exc).strip().splitlines()[0]}")
+
+
+def _check_algo_kwargs(algo: str, kwargs: dict[str, Any]) -> None:
+    """Refuse a keyword the SB3 algorithm does not take, before training starts."""
+    import inspect
+
+    from servogym.agents._train import _algo_class
+
+    taken = set(inspect.signature(_algo_class(algo).__init__).parameters) - {"self", "env"}
+    unknown = [k for k in kwargs if k not in taken]
+    if unknown:
+        _fail(
+            f"--algo-kwargs names {', '.join(map(repr, unknown))}, which {algo.upper()} does not "
+            f"take; got --algo-kwargs {json.dumps(kwargs)}."
+        )
+
+
+def _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes, checkpoint_every):
+    from servogym.agents._train import train
+
+    return train(
         env,
         algo,
         timesteps,
         seed,
         out,
         n_envs=n_envs,
-        env_kwargs=_json_option(env_kwargs, "--env-kwargs"),
-        algo_kwargs=_json_option(algo_kwargs, "--algo-kwargs"),
+        env_kwargs=env_kw,
+        algo_kwargs=algo_kw,
         wall_time_s=None if minutes is None else minutes * 60.0,
         checkpoint_every=checkpoint_every,
     )
-    console.print(f"saved {path}")
 
 
 def evaluate_command(
@@ -114,12 +160,14 @@ def evaluate_command(
     import gymnasium as gym
 
     import servogym.envs  # noqa: F401
+    from servogym._cli_common import check_count
     from servogym.agents._evaluate import (
         baseline_policies,
         run_episodes,
         summarize,
     )
 
+    check_count("--seed", seed, low=0)
     kwargs: dict[str, Any] = {}
     if model is not None:
         if not model.exists():

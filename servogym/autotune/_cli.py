@@ -145,7 +145,11 @@ def tune_command(
             search=tuple(search) if search else None,
             batch_size=batch_size,
         )
-        config.problem()  # validate everything before the progress bar
+        problem = config.problem()  # validate everything before the progress bar
+        if warm_start is not None:
+            from servogym.autotune._job import read_param_file
+
+            read_param_file(warm_start, problem.scenario.chip_model)
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
         return
@@ -170,14 +174,21 @@ def tune_command(
     )
     task = progress.add_task("tune", total=budget, best="-")
 
+    started = []
+
     def on_progress(done: int, total: int, best: float | None) -> None:
+        if not started:  # shown once the study is open: a storage error prints one line
+            progress.start()
+            started.append(True)
         progress.update(
             task, completed=done, total=total, best="-" if best is None else f"{best:.4g}"
         )
 
     try:
-        with progress:
+        try:
             _, summary = tune(config, on_progress)
+        finally:
+            progress.stop()
     except KeyboardInterrupt:
         console.print(
             f"[yellow]interrupted[/yellow]: every finished trial is stored; continue with "
