@@ -248,6 +248,7 @@ class FileSchema:
         for key in ("metrics", "notes"):
             if key in doc:
                 _expect(doc, key, dict, "a JSON object")
+        verify_checksum(doc)  # last check: a structural error gets its own message first
         if spec != self.spec_version:
             warnings.warn(
                 f"the parameter file was written for spec_version {spec!r} but this servogym "
@@ -257,7 +258,6 @@ class FileSchema:
                 UserWarning,
                 stacklevel=3,
             )
-        verify_checksum(doc)  # last: a structural error gets its own message first
         provenance = {
             k: v for k, v in doc.items() if k not in ("params", "assumptions", "checksum")
         }
