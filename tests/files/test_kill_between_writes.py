@@ -25,21 +25,18 @@ from servogym._files import (
 from servogym.autotune._report import param_set_files, write_param_set
 from servogym.chips import families, read_params_file
 
-# The child counts the steps of write_file_set (temporary files, renames) and dies at one.
-CHILD = textwrap.dedent(
+# A child process kills itself (SIGKILL) at step ``KILL_AT`` of servogym._files' writing:
+# each temporary file written (when ``COUNT_TEMPS``) and each rename count as one step.
+KILLER = textwrap.dedent(
     """
-    import os, signal, sys
+    import os, signal
     import servogym._files as F
-    from servogym.autotune._report import write_param_set
-    from servogym.chips import get_chip
 
-    kill_at, folder, model, kp_name, kp = int(sys.argv[1]), sys.argv[2], sys.argv[3], \\
-        sys.argv[4], int(sys.argv[5])
     steps = [0]
 
     def step():
         steps[0] += 1
-        if steps[0] == kill_at:
+        if steps[0] == KILL_AT:
             os.kill(os.getpid(), signal.SIGKILL)
 
     real_temp, real_replace = F._write_temp, F.os.replace
@@ -58,12 +55,32 @@ CHILD = textwrap.dedent(
             real_replace(src, dst)
             step()
 
-    F._write_temp, F.os = temp, _Os()
+    F.os = _Os()
+    if COUNT_TEMPS:
+        F._write_temp = temp
+    """
+)
+
+CHILD = (
+    textwrap.dedent(
+        """
+    import sys
+    KILL_AT, COUNT_TEMPS = int(sys.argv[1]), True
+    """
+    )
+    + KILLER
+    + textwrap.dedent(
+        """
+    from servogym.autotune._report import write_param_set
+    from servogym.chips import get_chip
+
+    folder, model, kp_name, kp = sys.argv[2], sys.argv[3], sys.argv[4], int(sys.argv[5])
     family, model = get_chip(model)
     params = family.make_params(model, {kp_name: kp})
     write_param_set(params, folder, trial=2, extra_files={"summary.json": "{}\\n"})
     print(steps[0])
     """
+    )
 )
 
 GAIN = {"pmd": "kp", "pmac": "proportional_gain", "parker6k": "sgp"}
@@ -147,35 +164,27 @@ def test_a_file_edited_after_the_run_is_refused_by_the_loader(tmp_path):
     assert read_params_file(tmp_path / "best_params.json").params == params
 
 
-TUNE_CHILD = textwrap.dedent(
+TUNE_CHILD = (
+    textwrap.dedent(
+        """
+    import sys
+    KILL_AT, COUNT_TEMPS = int(sys.argv[1]), False
     """
-    import os, signal, sys
+    )
+    + KILLER
+    + textwrap.dedent(
+        """
     from pathlib import Path
-    import servogym._files as F
     from servogym.autotune import TuneConfig, tune
     from servogym.sim import MoveSpec
 
-    kill_at, out, budget = int(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
-    real_replace = F.os.replace
-    renames = [0]
-
-    class _Os:
-        def __getattr__(self, name):
-            return getattr(os, name)
-
-        @staticmethod
-        def replace(src, dst):
-            real_replace(src, dst)
-            renames[0] += 1
-            if renames[0] == kill_at:
-                os.kill(os.getpid(), signal.SIGKILL)
-
-    F.os = _Os()
+    out, budget = Path(sys.argv[2]), int(sys.argv[3])
     moves = (MoveSpec(1.0, 40.0, 3000.0, 0.03), MoveSpec(-1.0, 40.0, 3000.0, 0.03))
     config = TuneConfig(chip="MC2100", plant="rotary", out=out, budget=budget, tuner="random",
                         workers=1, moves=moves, batch_size=2, resume=budget > 2)
     tune(config)
     """
+    )
 )
 
 
