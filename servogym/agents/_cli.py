@@ -150,8 +150,9 @@ def evaluate_command(
     fixed: Annotated[
         Path | None,
         typer.Option(
-            help="A 'best fixed set' baseline: a servogym parameter file (as `servogym tune` "
-            "writes) or a JSON object of register values."
+            help="A 'best fixed set' baseline: a parameter file in any format servogym writes "
+            "(JSON, C-Motion, host commands, I-variables, 6250/6K command file) or a JSON "
+            "object of register values."
         ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,

@@ -69,7 +69,11 @@ def tune_command(
     ] = False,
     warm_start: Annotated[
         Path | None,
-        typer.Option("--warm-start", help="Parameter file (JSON) to evaluate first."),
+        typer.Option(
+            "--warm-start",
+            help="Parameter file to evaluate first, in any format servogym writes (JSON, "
+            "C-Motion, host commands, I-variables, 6250/6K command file).",
+        ),
     ] = None,
     storage: Annotated[
         str | None,
