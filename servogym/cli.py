@@ -3,18 +3,67 @@
 from __future__ import annotations
 
 import json
+import math
+import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
 from rich.table import Table
+from typer.core import TyperGroup
+
+from servogym._cli_common import fail
+
+
+class _Group(TyperGroup):
+    """The app's command group: a bad option value's message also shows the value given.
+
+    Typer's type errors name the option but not the value (``Invalid value for '--budget':
+    Input should be a valid integer``); this adds ``; got --budget 'x'`` from the command
+    line, so every bad-input message names the parameter and the value.
+    """
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        argv = list(sys.argv[1:] if args is None else args)
+        if not standalone_mode:
+            return super().main(argv, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(argv, prog_name, complete_var, False, **extra)
+        except typer.BadParameter as exc:
+            given = _given(argv, getattr(exc.param, "opts", []) or [])
+            if given is not None and repr(given[1]) not in exc.message:
+                exc.message = f"{exc.message.rstrip('.')}; got {given[0]} {given[1]!r}."
+            exc.show()
+            sys.exit(exc.exit_code)
+        except typer.TyperException as exc:  # click's UsageError and the like
+            exc.show()  # type: ignore[attr-defined]
+            sys.exit(getattr(exc, "exit_code", 2))
+        except typer.Abort:
+            typer.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+def _given(argv: list[str], opts: list[str]) -> tuple[str, str] | None:
+    """The last value given on the command line for an option (``--budget x``, ``--budget=x``)."""
+    found = None
+    for i, arg in enumerate(argv):
+        for opt in opts:
+            if arg == opt and i + 1 < len(argv):
+                found = (opt, argv[i + 1])
+            elif opt.startswith("--") and arg.startswith(opt + "="):
+                found = (opt, arg[len(opt) + 1 :])
+    return found
+
 
 app = typer.Typer(
+    cls=_Group,
     help="Tune real motion-controller chips in simulation: exact chip filters on MuJoCo plants.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # usage errors as one plain line, not a wrapped rich panel
 )
 console = Console()
 if not console.is_terminal:  # pipes and CI logs: wide enough for the parameter tables
@@ -22,20 +71,30 @@ if not console.is_terminal:  # pipes and CI logs: wide enough for the parameter 
 
 
 def _fail(message: str) -> None:
-    console.print(f"[red]error:[/red] {message}", highlight=False)
-    raise typer.Exit(code=2)
+    fail(message)
+
+
+def _finite(text: str, option: str, name: str) -> float:
+    """``text`` as a finite number, or a one-line error naming the option and the value."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+        _fail(f"{option} {name} must be a number; got {name}={text!r}.")
+    if not math.isfinite(value):
+        _fail(f"{option} {name} must be a finite number; got {name}={text!r}.")
+    return value
 
 
 def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
     out: dict[str, float] = {}
     for item in items or []:
         key, sep, value = item.partition("=")
-        if not sep or not key:
-            _fail(f"{option} takes NAME=VALUE; got {item!r}")
-        try:
-            out[key.strip()] = float(value)
-        except ValueError:
-            _fail(f"{option} {key}: {value!r} is not a number")
+        if not sep or not key.strip():
+            _fail(f"{option} takes NAME=VALUE; got {option} {item!r}.")
+        if key.strip() in out:
+            _fail(f"{option} names {key.strip()} twice; got {option} {item!r}.")
+        out[key.strip()] = _finite(value, option, key.strip())
     return out
 
 
@@ -106,33 +165,61 @@ def plants(
         console.print(table)
 
 
+PARAMS_FILE_HELP = (
+    "A parameter file in any format servogym writes: JSON, C-Motion, PMD host commands, "
+    "PMAC I-variables, Parker 6250/6K command file (detected from the content)."
+)
+
+
 @app.command()
 def export(
-    params_file: Annotated[Path, typer.Argument(help="A servogym JSON parameter file.")],
+    params_file: Annotated[Path, typer.Argument(help=PARAMS_FILE_HELP)],
     fmt: Annotated[
-        str, typer.Option("--format", "-f", help="Output format (see `servogym chips`).")
-    ] = "cmotion",
+        str | None,
+        typer.Option(
+            "--format",
+            "-f",
+            help="Output format (see `servogym chips`) [default: the chip's own: cmotion, "
+            "ivar, 6250 or 6k].",
+        ),
+    ] = None,
+    input_format: Annotated[
+        str | None,
+        typer.Option("--input-format", help="Format of PARAMS_FILE [default: detected]."),
+    ] = None,
+    chip: Annotated[
+        str | None,
+        typer.Option(help="Chip model, for a file that names none (a controller's file)."),
+    ] = None,
     axis: Annotated[int | None, typer.Option(help="Axis or motor number on the chip.")] = None,
     out: Annotated[
         Path | None, typer.Option("--out", "-o", help="Write here instead of stdout.")
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace --out if it exists (never the input).")
+    ] = False,
 ) -> None:
-    """Export a parameter file in the form the hardware takes."""
-    from servogym.chips import ParameterError, family_of, load_params_file
+    """Export a parameter file in the form the hardware takes (written atomically)."""
+    from servogym._files import check_target, write_atomic
+    from servogym.chips import ParameterError, family_of, read_params_file
 
     try:
-        loaded = load_params_file(params_file.read_text())
+        if out is not None:
+            check_target(out, inputs=[params_file], force=force)
+        loaded = read_params_file(params_file, input_format, chip, what="PARAMS_FILE")
         family = family_of(loaded.params)
+        target = fmt if fmt is not None else family.native_format(loaded.params.model)
         kw = {} if axis is None else {"axis": axis}
-        text = family.export(loaded.params, fmt, assumptions=loaded.assumptions, **kw)
+        text = family.export(loaded.params, target, assumptions=loaded.assumptions, **kw)
+        if out is not None:
+            write_atomic(out, text)
     except (ParameterError, ValueError, OSError) as exc:
         _fail(str(exc))
         return
     if out is None:
         typer.echo(text, nl=not text.endswith("\n"))
     else:
-        out.write_text(text)
-        console.print(f"wrote {out}")
+        console.print(f"wrote {out}", highlight=False)
 
 
 @app.command()
@@ -146,7 +233,11 @@ def simulate(
         typer.Option("--plant-param", help="Plant parameter NAME=VALUE (repeatable)."),
     ] = None,
     params: Annotated[
-        Path | None, typer.Option(help="A servogym JSON parameter file (default: chip defaults).")
+        Path | None,
+        typer.Option(help=PARAMS_FILE_HELP + " Default: the chip's defaults."),
+    ] = None,
+    params_format: Annotated[
+        str | None, typer.Option("--format", help="Format of --params [default: detected].")
     ] = None,
     move: Annotated[
         list[str] | None,
@@ -169,26 +260,31 @@ def simulate(
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics as JSON.")] = False,
 ) -> None:
     """Simulate a chip axis on a plant along moves; print metrics, write a response plot."""
-    from servogym.chips import ParameterError, family_of, load_params_file
+    from servogym.chips import ParameterError, family_of, read_params_file
     from servogym.plants import PlantParameterError
     from servogym.sim import REFERENCE_SUBSTEPS, Evaluator, MoveSpec, Scenario
     from servogym.sim._plot import plot_response
 
     try:
-        loaded = load_params_file(params.read_text()) if params else None
-        if loaded is not None and chip is not None and chip.upper() != loaded.params.model.upper():
-            _fail(f"--chip {chip} differs from the params file's chip model {loaded.params.model}")
+        loaded = read_params_file(params, params_format, chip, what="--params") if params else None
         model = loaded.params.model if loaded else (chip or "MC2100")
+        if substeps < 1:
+            _fail(f"--substeps must be an integer >= 1; got --substeps {substeps}.")
         moves = []
         for text in move or []:
-            try:
-                parts = [float(x) for x in text.split(",")]
-            except ValueError:
-                parts = []
-            if len(parts) not in (3, 4):
+            fields = text.split(",")
+            if len(fields) not in (3, 4):
                 _fail(
-                    f"--move takes DISTANCE,MAX_VELOCITY,MAX_ACCELERATION[,SETTLE_S]; got {text!r}"
+                    f"--move takes DISTANCE,MAX_VELOCITY,MAX_ACCELERATION[,SETTLE_S]; got "
+                    f"--move {text!r}."
                 )
+            names = ("DISTANCE", "MAX_VELOCITY", "MAX_ACCELERATION", "SETTLE_S")
+            parts = [_finite(x, "--move", n) for x, n in zip(fields, names, strict=False)]
+            for n, value in zip(names[1:], parts[1:], strict=False):
+                low_ok = value >= 0 if n == "SETTLE_S" else value > 0
+                if not low_ok:
+                    rule = ">= 0" if n == "SETTLE_S" else "> 0"
+                    _fail(f"--move {n} must be {rule}; got {n}={value:g} in --move {text!r}.")
             moves.append(MoveSpec(*parts))
         scenario = Scenario(
             model, plant, plant_values=_key_values(plant_param, "--plant-param"),
@@ -200,11 +296,14 @@ def simulate(
     except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
         _fail(str(exc))
         return
-    out.mkdir(parents=True, exist_ok=True)
     summary = {"chip_model": model, "chip_family": family_of(chip_params).name, "plant": plant,
                **result.summary()}  # fmt: skip
-    (out / "metrics.json").write_text(json.dumps(summary, indent=2))
-    plot_response([(model, result)], out / "response.png", f"{model} on {plant}")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "metrics.json").write_text(json.dumps(summary, indent=2))
+        plot_response([(model, result)], out / "response.png", f"{model} on {plant}")
+    except OSError as exc:
+        _fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
     if as_json:
         typer.echo(json.dumps(summary, indent=2))
         return
@@ -250,14 +349,15 @@ def check(
     assumption, the load at +-20 % and friction at +-50 %, and computes gain margin, phase
     margin and closed-loop bandwidth. Exit code 0 when it passes, 1 when it fails.
     """
+    from servogym._files import write_atomic
     from servogym.autotune._cli import check_table
-    from servogym.chips import ParameterError, load_params_file
+    from servogym.chips import ParameterError, read_params_file
     from servogym.plants import PlantParameterError
     from servogym.sim import Scenario
     from servogym.sim._check import CheckLimits, check_params
 
     try:
-        loaded = load_params_file(params_file.read_text())
+        loaded = read_params_file(params_file, model=chip, what="PARAMS")
         if chip is not None and chip.upper() != loaded.params.model.upper():
             _fail(f"--chip {chip} differs from the params file's chip model {loaded.params.model}")
         limits = CheckLimits(
@@ -275,7 +375,7 @@ def check(
         return
     doc = {"params_file": str(params_file), "chip_model": loaded.params.model, "plant": plant,
            "plant_values": scenario.plant_values, **report.to_dict()}  # fmt: skip
-    (folder / "check.json").write_text(json.dumps(doc, indent=2) + "\n")
+    write_atomic(folder / "check.json", json.dumps(doc, indent=2) + "\n")
     if as_json:
         typer.echo(json.dumps(doc, indent=2))
     else:

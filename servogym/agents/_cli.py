@@ -10,12 +10,13 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from servogym._cli_common import fail
+
 console = Console()
 
 
 def _fail(message: str) -> None:
-    console.print(f"[red]error:[/red] {message}", highlight=False)
-    raise typer.Exit(code=2)
+    fail(message)
 
 
 def _json_option(text: str | None, name: str) -> dict[str, Any]:
@@ -66,24 +67,70 @@ def train_command(
     ),
 ) -> None:
     """Train an SB3 agent on a servogym env, with a progress bar, checkpoints and TensorBoard."""
-    from servogym.agents._train import ALGOS, train
+    from servogym._cli_common import check_count, check_number
+    from servogym.agents._train import ALGOS
 
     if algo.lower() not in ALGOS:
         _fail(f"--algo must be one of {', '.join(ALGOS)}; got --algo {algo!r}.")
     _check_env_id(env)
-    path = train(
+    check_count("--seed", seed, low=0)
+    check_number("--minutes", minutes, low=0, low_open=True)
+    if out.exists() and not out.is_dir():
+        _fail(f"--out {str(out)!r} is a file; give a folder for the run.")
+    env_kw = _json_option(env_kwargs, "--env-kwargs")
+    algo_kw = _json_option(algo_kwargs, "--algo-kwargs")
+    _check_env_kwargs(env, env_kw)
+    _check_algo_kwargs(algo, algo_kw)
+    try:
+        path = _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes,
+                      checkpoint_every)  # fmt: skip
+    except (TypeError, ValueError) as exc:
+        _fail(f"--algo-kwargs {json.dumps(algo_kw)}: {exc}")
+    except OSError as exc:
+        _fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
+    console.print(f"saved {path}")
+
+
+def _check_env_kwargs(env: str, kwargs: dict[str, Any]) -> None:
+    """Build the env once in this process, so a bad keyword fails before any worker starts."""
+    import gymnasium as gym
+
+    try:
+        gym.make(env, **kwargs).close()
+    except (TypeError, ValueError, KeyError) as exc:
+        _fail(f"--env-kwargs {json.dumps(kwargs)}: {str(exc).strip().splitlines()[0]}")
+
+
+def _check_algo_kwargs(algo: str, kwargs: dict[str, Any]) -> None:
+    """Refuse a keyword the SB3 algorithm does not take, before training starts."""
+    import inspect
+
+    from servogym.agents._train import _algo_class
+
+    taken = set(inspect.signature(_algo_class(algo).__init__).parameters) - {"self", "env"}
+    unknown = [k for k in kwargs if k not in taken]
+    if unknown:
+        _fail(
+            f"--algo-kwargs names {', '.join(map(repr, unknown))}, which {algo.upper()} does not "
+            f"take; got --algo-kwargs {json.dumps(kwargs)}."
+        )
+
+
+def _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes, checkpoint_every):
+    from servogym.agents._train import train
+
+    return train(
         env,
         algo,
         timesteps,
         seed,
         out,
         n_envs=n_envs,
-        env_kwargs=_json_option(env_kwargs, "--env-kwargs"),
-        algo_kwargs=_json_option(algo_kwargs, "--algo-kwargs"),
+        env_kwargs=env_kw,
+        algo_kwargs=algo_kw,
         wall_time_s=None if minutes is None else minutes * 60.0,
         checkpoint_every=checkpoint_every,
     )
-    console.print(f"saved {path}")
 
 
 def evaluate_command(
@@ -103,8 +150,9 @@ def evaluate_command(
     fixed: Annotated[
         Path | None,
         typer.Option(
-            help="A 'best fixed set' baseline: a servogym parameter file (as `servogym tune` "
-            "writes) or a JSON object of register values."
+            help="A 'best fixed set' baseline: a parameter file in any format servogym writes "
+            "(JSON, C-Motion, host commands, I-variables, 6250/6K command file) or a JSON "
+            "object of register values."
         ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,
@@ -113,26 +161,34 @@ def evaluate_command(
     import gymnasium as gym
 
     import servogym.envs  # noqa: F401
+    from servogym._cli_common import check_count
     from servogym.agents._evaluate import (
         baseline_policies,
         run_episodes,
         summarize,
     )
 
+    check_count("--seed", seed, low=0)
     kwargs: dict[str, Any] = {}
     if model is not None:
         if not model.exists():
             _fail(f"--model {str(model)!r} does not exist.")
         cfg = model.parent / "config.json"
         if cfg.exists():
-            config = json.loads(cfg.read_text())
-            env = env or config["env_id"]
-            kwargs.update(config.get("env_kwargs", {}))
+            try:
+                config = json.loads(cfg.read_text())
+                env = env or config["env_id"]
+                kwargs.update(config.get("env_kwargs", {}))
+            except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+                _fail(f"--model {str(model)!r}: its config.json cannot be read: {exc!r}.")
     if env is None:
         _fail("give --env, or a --model whose run directory has a config.json")
     _check_env_id(env)
     kwargs.update(_json_option(env_kwargs, "--env-kwargs"))
-    e = gym.make(env, **kwargs)
+    try:
+        e = gym.make(env, **kwargs)
+    except (ValueError, TypeError, KeyError) as exc:
+        _fail(f"--env-kwargs {json.dumps(kwargs)}: {exc}")
     extra = {}
     if fixed is not None:
         extra["best fixed set"] = _fixed_values(fixed, e.unwrapped.scenario.chip_model)
@@ -140,8 +196,14 @@ def evaluate_command(
     if model is not None:
         from servogym.agents._train import load_policy
 
-        policies["policy"] = load_policy(model)
-    policies.update(baseline_policies(e, extra))
+        try:
+            policies["policy"] = load_policy(model)
+        except ValueError as exc:
+            _fail(str(exc))
+    try:
+        policies.update(baseline_policies(e, extra))
+    except ValueError as exc:
+        _fail(f"--fixed {str(fixed)!r}: {exc}")
     seeds = range(seed, seed + episodes)
     results = {name: summarize(run_episodes(e, p, seeds)) for name, p in policies.items()}
     if as_json:
@@ -160,25 +222,28 @@ def evaluate_command(
 
 
 def _fixed_values(path: Path, chip_model: str) -> dict[str, Any]:
-    """Register values of a --fixed file: a servogym parameter file or a plain JSON object."""
-    from servogym.chips import ParameterError, load_params_file
+    """Register values of a --fixed file: a parameter file in any format servogym writes,
+    or a plain JSON object of register values."""
+    from servogym.chips import ParameterError, read_params_file
+    from servogym.chips._paramfile import strict_json
 
     try:
         text = path.read_text()
-        doc = json.loads(text)
-    except (OSError, json.JSONDecodeError) as exc:
-        _fail(f"--fixed {str(path)!r} is not a readable JSON file: {exc}")
-    if isinstance(doc, dict) and "chip_family" in doc:
-        try:
-            params = load_params_file(text).params
-        except ParameterError as exc:
-            _fail(f"--fixed {str(path)!r}: {exc}")
-        if params.model != chip_model:
-            _fail(
-                f"--fixed {str(path)!r} is a {params.model} parameter set; the env runs "
-                f'{chip_model} (pass --env-kwargs \'{{"chip_model": "{params.model}"}}\').'
-            )
-        return params.to_dict()
-    if not isinstance(doc, dict):
-        _fail(f"--fixed {str(path)!r} must hold a JSON object of register values.")
-    return doc
+    except (OSError, UnicodeDecodeError) as exc:
+        _fail(f"--fixed {str(path)!r} cannot be read: {getattr(exc, 'strerror', None) or exc}.")
+    try:
+        doc = strict_json(text) if text.lstrip().startswith("{") else None
+    except ValueError as exc:
+        _fail(f"--fixed {str(path)!r}: {exc}")
+    if isinstance(doc, dict) and "format" not in doc:
+        return doc  # register values only; the env validates them
+    try:
+        params = read_params_file(path, what="--fixed").params
+    except ParameterError as exc:
+        _fail(str(exc))
+    if params.model != chip_model:
+        _fail(
+            f"--fixed {str(path)!r} is a {params.model} parameter set; the env runs "
+            f'{chip_model} (pass --env-kwargs \'{{"chip_model": "{params.model}"}}\').'
+        )
+    return {k: v for k, v in params.to_dict().items() if k != "model"}

@@ -233,19 +233,79 @@ def train(
     return path
 
 
+class UnsafeModelError(ValueError):
+    """A saved model cannot be loaded without running code from the file (or is damaged)."""
+
+
 def load_model(path: str | Path):
-    """Load a saved model; the algorithm is read from the run's ``config.json`` when there,
-    else tried in turn."""
+    """Load a model saved by :func:`train` without unpickling anything from the file.
+
+    SB3's own ``load`` unpickles the ``data`` entry of the zip (spaces, schedules, the policy
+    class), so a crafted ``model.zip`` runs code. Here only the weights are read, with
+    ``torch.load(weights_only=True)`` (tensors and plain containers, nothing else); the
+    model is rebuilt from the run's ``config.json`` (algorithm, env id and keyword
+    arguments, residual map: JSON), and the env gives the spaces.
+
+    Raises:
+        UnsafeModelError: if the run folder has no ``config.json``, the zip holds no
+            ``policy.pth`` or holds objects other than tensors, or the weights do not fit
+            the policy the configuration builds.
+    """
+    import io
+    import zipfile
+
+    import torch
+
     path = Path(path)
     cfg = path.parent / "config.json"
-    if cfg.exists():
-        return _algo_class(json.loads(cfg.read_text())["algo"]).load(path, device="cpu")
-    for algo in ALGOS:
-        try:
-            return _algo_class(algo).load(path, device="cpu")
-        except Exception:
-            continue
-    raise ValueError(f"{path} is not a model saved by PPO, SAC or TD3")
+    if not cfg.exists():
+        raise UnsafeModelError(
+            f"--model {str(path)!r} has no config.json next to it; servogym rebuilds a policy "
+            f"from its run's config.json and loads only the weights, so it never unpickles a "
+            f"model file. Evaluate the run folder `servogym train` wrote."
+        )
+    try:
+        config = json.loads(cfg.read_text())
+        algo, env_id = config["algo"], config["env_id"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UnsafeModelError(
+            f"{str(cfg)!r} is not a servogym train config.json: {exc}."
+        ) from None
+    try:
+        with zipfile.ZipFile(path) as zf:
+            raw = zf.read("policy.pth")
+    except (OSError, zipfile.BadZipFile, KeyError) as exc:
+        raise UnsafeModelError(
+            f"--model {str(path)!r} is not a saved SB3 model (a zip with policy.pth): {exc}."
+        ) from None
+    try:
+        state = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises UnpicklingError, RuntimeError, ...
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise UnsafeModelError(
+            f"--model {str(path)!r}: policy.pth holds more than weights (refused unread: "
+            f"{first[:160]})."
+        ) from None
+    kwargs = json.loads(json.dumps(dict(config.get("algo_kwargs") or {})))
+    for key in ("learning_starts", "n_steps", "batch_size", "buffer_size"):
+        kwargs.pop(key, None)  # training-only; keep the buffer small
+    env = make_env(env_id, config.get("env_kwargs"), 1.0, config.get("residual"))()
+    try:
+        model = (
+            _algo_class(algo)("MlpPolicy", env, device="cpu", buffer_size=1, **kwargs)
+            if algo in ("sac", "td3")
+            else _algo_class(algo)("MlpPolicy", env, device="cpu", **kwargs)
+        )
+        model.policy.load_state_dict(state)
+    except (RuntimeError, TypeError, ValueError) as exc:
+        first = str(exc).strip().splitlines()[0]
+        raise UnsafeModelError(
+            f"--model {str(path)!r}: its weights do not fit the {algo} policy its config.json "
+            f"describes ({first[:160]})."
+        ) from None
+    finally:
+        env.close()
+    return model
 
 
 def load_policy(path: str | Path):

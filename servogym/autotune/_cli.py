@@ -69,7 +69,11 @@ def tune_command(
     ] = False,
     warm_start: Annotated[
         Path | None,
-        typer.Option("--warm-start", help="Parameter file (JSON) to evaluate first."),
+        typer.Option(
+            "--warm-start",
+            help="Parameter file to evaluate first, in any format servogym writes (JSON, "
+            "C-Motion, host commands, I-variables, 6250/6K command file).",
+        ),
     ] = None,
     storage: Annotated[
         str | None,
@@ -118,16 +122,29 @@ def tune_command(
     """Tune a chip's parameters on a simulated plant and write the tuned set with reports."""
     from rich.console import Console
 
+    from servogym._cli_common import check_count, check_number, fail
+    from servogym._files import MANIFEST, PENDING, FileSafetyError
     from servogym.autotune._job import TuneConfig, parse_fix, parse_plant_params, tune
     from servogym.autotune._session import TuneError
     from servogym.autotune._tuners import tuner_names
     from servogym.chips._space import ParameterError
 
     console = Console()
-
-    def fail(message: str) -> None:
-        console.print(f"[red]error:[/red] {message}", highlight=False)
-        raise typer.Exit(code=2)
+    check_count("--budget", budget)
+    check_count("--workers", workers)
+    check_count("--robust", robust)
+    check_count("--batch-size", batch_size)
+    check_count("--seed", seed, low=0)
+    check_number("--max-following-error", max_following_error, low=0, low_open=True)
+    check_number("--max-saturation", max_saturation, low=0, high=1)
+    if out.exists() and not out.is_dir():
+        fail(f"--out {str(out)!r} is a file; give a folder for the run's outputs.")
+    previous = [n for n in (MANIFEST, PENDING, "study.db") if (out / n).exists()]
+    if previous and not resume:
+        fail(
+            f"--out {str(out)!r} already holds a tune run ({', '.join(previous)}); pass "
+            f"--resume to continue its study, or choose another --out."
+        )
 
     try:
         if tuner not in tuner_names():
@@ -161,7 +178,11 @@ def tune_command(
             check_candidates=check_candidates,
             force=force,
         )
-        config.problem()  # validate everything before the progress bar
+        problem = config.problem()  # validate everything before the progress bar
+        if warm_start is not None:
+            from servogym.autotune._job import read_param_file
+
+            read_param_file(warm_start, problem.scenario.chip_model)
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
         return
@@ -186,22 +207,39 @@ def tune_command(
     )
     task = progress.add_task("tune", total=budget, best="-")
 
+    started = []
+
     def on_progress(done: int, total: int, best: float | None) -> None:
+        if not started:  # shown once the study is open: a storage error prints one line
+            progress.start()
+            started.append(True)
         progress.update(
             task, completed=done, total=total, best="-" if best is None else f"{best:.4g}"
         )
 
     try:
-        with progress:
+        try:
             _, summary = tune(config, on_progress)
+        finally:
+            progress.stop()
     except KeyboardInterrupt:
         console.print(
             f"[yellow]interrupted[/yellow]: every finished trial is stored; continue with "
             f"the same command and --resume (out={out})."
         )
         raise typer.Exit(code=130) from None
-    except (TuneError, ParameterError, KeyError, ValueError) as exc:
+    except (TuneError, ParameterError, FileSafetyError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
+        return
+    except OSError as exc:
+        fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
+        return
+    except Exception as exc:  # storage drivers: SQLAlchemy and Optuna errors
+        if type(exc).__module__.split(".")[0] not in ("sqlalchemy", "optuna", "sqlite3"):
+            raise
+        where = storage or f"{out / 'study.db'}"
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        fail(f"--storage {where!r} cannot be used as an Optuna study: {first[:200]}")
         return
     console.print(summary_heading(summary), highlight=False)
     console.print(summary_table(summary))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import io
 import os
 import time
 from collections.abc import Callable, Mapping
@@ -146,19 +147,15 @@ def _number(text: str, name: str, what: str) -> int | float:
 
 
 def read_param_file(path: str | Path, chip_model: str) -> dict[str, int]:
-    """Register values of a servogym JSON parameter file written for ``chip_model``.
+    """Register values of a parameter file written for ``chip_model``, in any format
+    servogym writes (:func:`servogym.chips.read_params_file` detects it)."""
+    from servogym.chips import read_params_file
 
-    The family's ``import_params`` reads and validates it.
-    """
     family, model = get_chip(chip_model)
     try:
-        text = Path(path).read_text()
-    except OSError as exc:
-        raise TuneError(f"cannot read the warm-start file {str(path)!r}: {exc}") from None
-    try:
-        params = family.import_params(text, "json")
+        params = read_params_file(path, model=model, what="--warm-start").params
     except ValueError as exc:
-        raise TuneError(f"the warm-start file {str(path)!r} cannot be used: {exc}") from None
+        raise TuneError(str(exc)) from None
     if params.model != model:
         raise TuneError(
             f"the warm-start file {str(path)!r} is for chip {params.model}, not {model}."
@@ -311,11 +308,14 @@ def tune(
         progress=progress,
     )
     report = None
+    files: dict[str, bytes] = {}
     if config.check:
         result, report = check_candidates(result, config)
-        write_bode(out / "bode.png", problem.scenario, result.best_params, report.limits)
+        buf = io.BytesIO()
+        write_bode(buf, problem.scenario, result.best_params, report.limits)
+        files["bode.png"] = buf.getvalue()
     extra = {} if design is None else {"design_start": design}
-    summary = write_outputs(result, out, config, check=report, extra=extra)
+    summary = write_outputs(result, out, config, check=report, extra=extra, extra_files=files)
     return result, summary
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import json
 import math
 from pathlib import Path
@@ -12,10 +13,11 @@ from typing import Any
 import numpy as np
 
 from servogym import __version__
+from servogym._files import write_atomic, write_file_set
 from servogym.autotune._problem import TuneProblem
 from servogym.autotune._session import is_feasible, pareto_front, scored_trials
 from servogym.autotune._space import UNIT_PREFIX
-from servogym.chips._family import get_chip
+from servogym.chips._family import family_of, get_chip
 from servogym.sim._scenario import Evaluation, Evaluator
 
 TABLE_METRICS = (
@@ -32,13 +34,15 @@ TABLE_METRICS = (
 """Rows of the default-vs-tuned table: (key of :func:`evaluation_metrics`, label)."""
 
 
-def export_names(family: Any) -> dict[str, str]:
-    """File name of each of the chip family's export formats: ``best_params.json``, ...
+def export_names(family: Any, model: str | None = None) -> dict[str, str]:
+    """File name of each export format of a chip family (of one model, when given: the
+    formats it takes, :meth:`ChipFamily.formats_for`): ``best_params.json``, ...
 
     A format whose extension (``family.file_extensions``) is unique and not ``.txt`` gets
     ``best_params<ext>``; the others ``best_params_<format><ext>`` (``best_params_host.txt``).
     """
-    exts = {f: family.file_extensions.get(f, ".txt") for f in family.formats}
+    formats = family.formats if model is None else family.formats_for(model)
+    exts = {f: family.file_extensions.get(f, ".txt") for f in formats}
     out = {}
     for fmt, ext in exts.items():
         unique = list(exts.values()).count(ext) == 1 and ext != ".txt"
@@ -73,6 +77,11 @@ def evaluate_on_problem(problem: TuneProblem, params: Any) -> tuple[list[Evaluat
 
 
 def write_trials_csv(trials: list[Any], names: tuple[str, ...], path: Path) -> None:
+    """:func:`trials_csv_text` written atomically to ``path``."""
+    write_atomic(path, trials_csv_text(trials, names))
+
+
+def trials_csv_text(trials: list[Any], names: tuple[str, ...]) -> str:
     """Every trial: number, kind, state, objective values, constraints, registers, u."""
     registers: list[str] = []
     for t in trials:
@@ -89,24 +98,25 @@ def write_trials_csv(trials: list[Any], names: tuple[str, ...], path: Path) -> N
         + [UNIT_PREFIX + n for n in names]
         + ["duration_s", "note"]
     )
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        for t in trials:
-            values = list(t.values) if t.values else []
-            values += [""] * (n_obj - len(values))
-            outcome = t.user_attrs.get("outcome", {})
-            regs = t.user_attrs.get("registers", {})
-            duration = t.duration.total_seconds() if t.duration is not None else ""
-            note = t.user_attrs.get("note") or t.user_attrs.get("error") or ""
-            w.writerow(
-                [t.number, t.user_attrs.get("kind", ""), t.state.name, *values,
-                 is_feasible(t) if t.values else ""]
-                + [outcome.get(c, "") for c in outcome_cols]
-                + [regs.get(r, "") for r in registers]
-                + [t.params.get(UNIT_PREFIX + n, "") for n in names]
-                + [duration, note]
-            )  # fmt: skip
+    fh = io.StringIO(newline="")
+    w = csv.writer(fh)
+    w.writerow(header)
+    for t in trials:
+        values = list(t.values) if t.values else []
+        values += [""] * (n_obj - len(values))
+        outcome = t.user_attrs.get("outcome", {})
+        regs = t.user_attrs.get("registers", {})
+        duration = t.duration.total_seconds() if t.duration is not None else ""
+        note = t.user_attrs.get("note") or t.user_attrs.get("error") or ""
+        w.writerow(
+            [t.number, t.user_attrs.get("kind", ""), t.state.name, *values,
+             is_feasible(t) if t.values else ""]
+            + [outcome.get(c, "") for c in outcome_cols]
+            + [regs.get(r, "") for r in registers]
+            + [t.params.get(UNIT_PREFIX + n, "") for n in names]
+            + [duration, note]
+        )  # fmt: skip
+    return fh.getvalue()
 
 
 def convergence_figure(trials: list[Any], default_cost: float, title: str):
@@ -170,16 +180,89 @@ def pareto_figure(trials: list[Any], objectives: tuple[str, ...]):
     return fig
 
 
-def write_outputs(
-    result: Any, out: Path, config: Any, check: Any = None, extra: dict | None = None
+def param_set_files(
+    params: Any,
+    *,
+    assumptions: Any = None,
+    metrics: dict[str, Any] | None = None,
+    notes: dict[str, Any] | None = None,
+    hardware: bool = True,
+) -> dict[str, str]:
+    """The tuned set's files: ``best_params.json`` and every export the chip model takes
+    (``hardware=False``: only the JSON parameter file, for a set that failed its check).
+
+    Returns:
+        File name -> text (each export ends with its checksummed end line).
+    """
+    family = family_of(params)
+    files = {}
+    for fmt, name in export_names(family, params.model).items():
+        if not hardware and fmt != "json":
+            continue
+        kw: dict[str, Any] = {"assumptions": assumptions}
+        if fmt == "json":
+            kw.update(metrics=metrics, notes=notes)
+        files[name] = family.export(params, fmt, **kw)
+    return files
+
+
+def write_param_set(
+    params: Any,
+    out: str | Path,
+    *,
+    assumptions: Any = None,
+    metrics: dict[str, Any] | None = None,
+    notes: dict[str, Any] | None = None,
+    trial: int | None = None,
+    extra_files: dict[str, str | bytes] | None = None,
+    hardware: bool = True,
 ) -> dict[str, Any]:
-    """Write every output file of a tuned run; return the summary (also summary.json).
+    """Write a parameter set (JSON and every export) into ``out`` as one set with a manifest.
+
+    The files, with ``extra_files`` (reports that belong to the set), go through
+    :func:`servogym._files.write_file_set`: temporary files, a pending manifest, renames,
+    then ``manifest.json`` (each file's SHA-256, the trial, the chip model). A reader
+    (``servogym.chips.read_params_file``) refuses a file the manifest does not match.
+
+    Returns:
+        The manifest written.
+    """
+    files: dict[str, str | bytes] = dict(
+        param_set_files(
+            params, assumptions=assumptions, metrics=metrics, notes=notes, hardware=hardware
+        )
+    )
+    files.update(extra_files or {})
+    meta = {"trial": trial, "chip_model": params.model}
+    return write_file_set(Path(out), files, meta)
+
+
+def _png(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    return buf.getvalue()
+
+
+def write_outputs(
+    result: Any,
+    out: Path,
+    config: Any,
+    check: Any = None,
+    extra: dict[str, Any] | None = None,
+    extra_files: dict[str, str | bytes] | None = None,
+) -> dict[str, Any]:
+    """Write every output file of a tuned run as one set; return the summary.
+
+    Everything is computed first; then :func:`write_param_set` writes the tuned set, its
+    exports, ``trials.csv``, the plots and ``summary.json`` together with ``manifest.json``,
+    so a run killed while writing leaves the previous set or this one, never a mix.
 
     ``check`` is the result's :class:`~servogym.sim.CheckReport` (``None``: not checked).
     When it failed, only the JSON parameter file is written, not the files a drive loads,
-    unless ``config.force``. ``extra`` entries are added to the summary.
+    unless ``config.force``. ``extra`` entries are added to the summary, ``extra_files``
+    (name -> content, e.g. ``bode.png``) to the set.
     """
-    from servogym.sim._plot import plot_response
+    from servogym.sim._plot import response_figure
 
     problem: TuneProblem = result.problem
     family, model = get_chip(problem.scenario.chip_model)
@@ -190,7 +273,6 @@ def write_outputs(
     default_metrics = evaluation_metrics(d_evals, mode)
     tuned_metrics = evaluation_metrics(t_evals, mode)
 
-    files: dict[str, str] = {}
     notes = {
         "tuner": result.tuner,
         "seed": problem.seed,
@@ -205,39 +287,30 @@ def write_outputs(
     if check is not None:
         notes["check"] = _jsonable(check.to_dict())
     withheld = check is not None and not check.passed and not getattr(config, "force", False)
-    names = export_names(family)
-    for fmt, name in names.items():
-        if withheld and fmt != "json":
-            continue
-        kw: dict[str, Any] = {}
-        if fmt == "json":
-            kw = {
-                "assumptions": problem.scenario.assumptions,
-                "metrics": {"tuned": tuned_metrics, "default": default_metrics},
-                "notes": notes,
-            }
-        (out / name).write_text(family.export(result.best_params, fmt, **kw))
-        files[fmt] = name
-
-    write_trials_csv(result.trials, problem.space.names, out / "trials.csv")
+    names = export_names(family, model)
+    files: dict[str, str] = {f: n for f, n in names.items() if f == "json" or not withheld}
+    reports: dict[str, str | bytes] = dict(extra_files or {})
+    if "bode.png" in reports:
+        files["bode_plot"] = "bode.png"
+    reports["trials.csv"] = trials_csv_text(result.trials, problem.space.names)
     files["trials"] = "trials.csv"
     title = (
         f"{model} on {problem.scenario.plant} (nominal plant): chip defaults vs "
         f"{result.tuner} (cost {default_metrics['cost']:.3g} -> {tuned_metrics['cost']:.3g})"
     )
-    plot_response([("default", d_nominal), ("tuned", t_nominal)], out / "response.png", title)
+    reports["response.png"] = _png(
+        response_figure([("default", d_nominal), ("tuned", t_nominal)], title)
+    )
     files["response_plot"] = "response.png"
     fig = convergence_figure(
         result.trials,
         default_metrics["cost"],
         f"{result.tuner} on {model} / {problem.scenario.plant}: {len(result.trials)} evaluations",
     )
-    fig.savefig(out / "convergence.png", dpi=110)
+    reports["convergence.png"] = _png(fig)
     files["convergence_plot"] = "convergence.png"
-    if (out / "bode.png").exists() and check is not None:
-        files["bode_plot"] = "bode.png"
     if problem.multi_objective:
-        pareto_figure(result.trials, problem.objectives).savefig(out / "pareto.png", dpi=110)
+        reports["pareto.png"] = _png(pareto_figure(result.trials, problem.objectives))
         files["pareto_plot"] = "pareto.png"
 
     summary = {
@@ -275,7 +348,17 @@ def write_outputs(
             for t in sorted(front, key=lambda t: t.values[0])
         ]
     files["summary"] = "summary.json"
-    (out / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
+    reports["summary.json"] = json.dumps(_jsonable(summary), indent=2) + "\n"
+    write_param_set(
+        result.best_params,
+        out,
+        assumptions=problem.scenario.assumptions,
+        metrics={"tuned": tuned_metrics, "default": default_metrics},
+        notes=notes,
+        trial=result.best.number,
+        extra_files=reports,
+        hardware=not withheld,
+    )
     return summary
 
 

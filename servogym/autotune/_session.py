@@ -69,8 +69,15 @@ def trial_seed(seed: int, number: int) -> int:
 
 
 def default_storage_url(out_dir: str | Path) -> str:
-    """``sqlite:///DIR/study.db``, the default storage of a run folder."""
-    return f"sqlite:///{(Path(out_dir) / 'study.db').resolve()}"
+    """``sqlite:///DIR/study.db``, the default storage of a run folder.
+
+    Built with SQLAlchemy's URL API, so a folder name with ``?``, ``%``, ``#`` or ``@`` is
+    quoted and names that folder (``--out 'q?x=1'`` stores into ``q?x=1/study.db``).
+    """
+    from sqlalchemy.engine import URL
+
+    path = (Path(out_dir) / "study.db").resolve()
+    return URL.create("sqlite", database=str(path)).render_as_string(hide_password=False)
 
 
 def open_storage(url: str) -> Any:

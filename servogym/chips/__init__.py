@@ -11,20 +11,23 @@ from servogym.chips._family import (
     families,
     family_of,
     get_chip,
-    load_params_file,
 )
+from servogym.chips._load import FILE_FORMATS, detect_format, load_params_file, read_params_file
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
 
 __all__ = [
     "FAMILY_CODES",
+    "FILE_FORMATS",
     "ChipFamily",
     "Move",
     "ParamSpec",
     "ParameterError",
     "ParameterSpace",
     "all_models",
+    "detect_format",
     "families",
     "family_of",
     "get_chip",
     "load_params_file",
+    "read_params_file",
 ]

@@ -190,6 +190,14 @@ class ChipFamily(abc.ABC):
         """The family's plain-Python reference filter (``step``, ``motion_error``)."""
         return self.reference_type(params, assumptions)
 
+    def formats_for(self, model: str) -> tuple[str, ...]:
+        """The export formats a chip model takes (every one of :attr:`formats` by default)."""
+        return tuple(self.formats)
+
+    def native_format(self, model: str) -> str:
+        """The format the model's own controller takes (``servogym export``'s default)."""
+        return next(f for f in self.formats_for(model) if f != "json")
+
     def export(self, params: Any, fmt: str, **kw: Any) -> str:
         """The parameter set in one of ``formats``."""
         return self.export_module.export(params, fmt, **kw)
@@ -260,28 +268,6 @@ def get_chip(model: str) -> tuple[ChipFamily, str]:
     models = all_models()
     key = resolve_name(model, models, "chip model")
     return models[key], key
-
-
-def load_params_file(text: str) -> Any:
-    """Load a servogym JSON parameter file of any family (``.params``, ``.assumptions``).
-
-    Raises:
-        ParameterError: when the file is not a servogym parameter file or names no known
-            chip family.
-    """
-    import json
-
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ParameterError(f"not a servogym JSON parameter file: {exc}") from None
-    name = doc.get("chip_family") if isinstance(doc, dict) else None
-    known = families()
-    if name not in known:
-        raise ParameterError(
-            f"chip_family must be one of {', '.join(known)}; got chip_family={name!r}."
-        )
-    return known[name].from_json(text)
 
 
 def family_of(params: Any) -> ChipFamily:

@@ -34,8 +34,10 @@ FILE_FORMAT = "servogym-params"
 FILE_FORMAT_VERSION = 1
 """Version of the JSON parameter-file layout this module writes and reads."""
 
-OPTIONAL_KEYS = ("metrics", "notes")
-"""Top-level keys a file may add to the required ones."""
+OPTIONAL_KEYS = ("metrics", "notes", "checksum")
+"""Top-level keys a file may add to the required ones. ``checksum`` (``"sha256:<hex>"`` of
+the rest of the document, the last key of every file servogym writes) is verified when
+present; a hand-written file may leave it out (docs/files.md)."""
 
 P = TypeVar("P")
 A = TypeVar("A")
@@ -207,6 +209,9 @@ class FileSchema:
             doc["metrics"] = json_object(metrics, "metrics")
         if notes is not None:
             doc["notes"] = json_object(notes, "notes")
+        from servogym._files import json_checksum  # servogym._files imports chips
+
+        doc["checksum"] = json_checksum(doc)
         return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
     def read(self, text: str | bytes) -> ParamFile[Any, Any]:
@@ -240,9 +245,10 @@ class FileSchema:
         spec = _expect(doc, "spec_version", str, "a string")
         created_text(_expect(doc, "created", str, "an ISO 8601 timestamp string"))
         _expect(doc, "servogym_version", str, "a string")
-        for key in OPTIONAL_KEYS:
+        for key in ("metrics", "notes"):
             if key in doc:
                 _expect(doc, key, dict, "a JSON object")
+        verify_checksum(doc)  # last check: a structural error gets its own message first
         if spec != self.spec_version:
             warnings.warn(
                 f"the parameter file was written for spec_version {spec!r} but this servogym "
@@ -252,7 +258,9 @@ class FileSchema:
                 UserWarning,
                 stacklevel=3,
             )
-        provenance = {k: v for k, v in doc.items() if k not in ("params", "assumptions")}
+        provenance = {
+            k: v for k, v in doc.items() if k not in ("params", "assumptions", "checksum")
+        }
         return ParamFile(params=params, assumptions=assumptions, provenance=provenance)
 
     def read_params(self, text: str | bytes, model: Any = None) -> Any:
@@ -435,9 +443,50 @@ def created_text(created: str | _dt.datetime | None) -> str:
     )
 
 
+def verify_checksum(doc: Mapping[str, Any]) -> None:
+    """Check a document's ``checksum`` entry, when it has one, against the rest of it."""
+    from servogym._files import json_checksum  # servogym._files imports chips
+
+    if "checksum" not in doc:
+        return
+    given = doc["checksum"]
+    rest = {k: v for k, v in doc.items() if k != "checksum"}
+    expected = json_checksum(rest)
+    if given != expected:
+        raise ParameterError(
+            f"checksum must equal the sha256 of the rest of the file ({expected[:19]}...); got "
+            f"checksum={str(given)[:19]!r}...: the file was changed or corrupted after it was "
+            f"written. Write it again; to load a hand-edited copy, delete its checksum entry."
+        )
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ParameterError(
+                f"the key {key!r} appears twice in one JSON object (values {out[key]!r} and "
+                f"{value!r}); a parameter file must name each entry once."
+            )
+        out[key] = value
+    return out
+
+
+def _no_constant(name: str) -> Any:
+    raise ParameterError(
+        f"a parameter file must be strict JSON; got the non-JSON number {name} (NaN and "
+        f"infinities are not register values)."
+    )
+
+
+def strict_json(text: str | bytes) -> Any:
+    """``json.loads`` that refuses a key named twice in an object, NaN and infinities."""
+    return json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=_no_constant)
+
+
 def _load(text: str | bytes) -> dict[str, Any]:
     try:
-        doc = json.loads(text)
+        doc = strict_json(text)
     except json.JSONDecodeError as exc:
         raise ParameterError(
             f"a parameter file must be JSON; invalid JSON at line {exc.lineno} column "

@@ -113,6 +113,13 @@ class UnitActions:
         self.space = spaces.Box(-1.0, 1.0, shape=(len(self.specs),), dtype=np.float32)
 
     def _array(self, action: Any) -> np.ndarray:
+        kind = np.asarray(action).dtype.kind
+        if kind not in "iuf":  # complex (its imaginary part would be dropped), bool, text
+            raise ValueError(
+                f"the action must be an array of {len(self.names)} real numbers in [-1, 1] "
+                f"({', '.join(self.names)}); got {action!r} of dtype "
+                f"{np.asarray(action).dtype}."
+            )
         try:
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError):

@@ -59,10 +59,20 @@ def options_plant_values(
     """A plant instance: ``options["plant_values"]`` over the scenario's fixed values and
     nominal ones when given, else a draw from the scenario's distribution."""
     options = options or {}
+    if not isinstance(options, Mapping):
+        raise ValueError(
+            f"reset options must be a dict such as {{'plant_values': {{...}}}}; got "
+            f"options={options!r}."
+        )
     unknown = set(options) - {"plant_values"}
     if unknown:
         raise ValueError(f"reset options may only contain 'plant_values'; got {sorted(unknown)}.")
     if "plant_values" in options:
+        if not isinstance(options["plant_values"], Mapping):
+            raise ValueError(
+                f"options['plant_values'] must be a dict of plant parameter values (SI); got "
+                f"plant_values={options['plant_values']!r}."
+            )
         family = get_plant(scenario.plant)
         return family.validate({**scenario.plant_values, **dict(options["plant_values"])})
     return scenario.draw_plant(rng)

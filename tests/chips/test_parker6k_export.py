@@ -169,7 +169,7 @@ def test_hand_written_files_as_the_controller_reads_them():
     text = """
     ssfr 8 : SGP.5,.5 : SGI 0,1 : SGV 2.3,2.30 : sgvf0,0 : SGAF 0,0   ; comment: ignored
     SGSET1
-    SGP85,40.00
+    SGP85,40.00 : SGI0,1 : SGV2.3,2.3 : SGVF0,0 : SGAF0,0
     SGSET2
     SGENB1,2
     SGILIM10,5 : SOFFS 0,-1.5 : SMPER 4000,0
@@ -220,7 +220,8 @@ VALID = "SSFR4\nSGP85\nSGI0\nSGV2.3\nSGVF0\nSGAF0\nSGILIM10\nSOFFS0\nSMPER0\n"
         (VALID.replace("SGI0\n", ""), r"does not set SGI for axis 1; an import takes no defaults"),
         ("SGP1\nSGSET1\n" + VALID, r"line 2: SGSET1 stores the five gains.*SGI, SGV, SGVF"),
         (VALID + "SGSET6", r"1 <= set <= 5; got SGSET6"),
-        (VALID + "SGSET1\nSGSET3", r"numbered from 1 without gaps.*not SGSET2"),
+        (VALID + "SGSET1\n" + VALID + "SGSET3", r"numbered from 1 without gaps.*not SGSET2"),
+        (VALID + "SGSET1\nSGP9\nSGSET2", r"line 12: SGSET2 .* does not set SGI, SGV, SGVF, SGAF"),
         (VALID + "SGENB2", r"SGENB2 enables gain set 2, which the file has not stored"),
         (VALID + "SGENB-1", r"SGENB takes a gain set number"),
         ("; sgenb tick=5 set=1\n" + VALID, r"sgenb\[0\] enables a stored gain set, but sgset"),
@@ -277,6 +278,7 @@ def test_export_refuses_illegal_sets_forms_and_axes():
 
 def _doc(**changes) -> str:
     doc = json.loads(to_json(Parker6kParams(model="6K"), created=CREATED))
+    del doc["checksum"]  # edited below: read as a hand-written file
     doc.update(changes)
     return json.dumps(doc)
 

@@ -251,9 +251,32 @@ def test_controller_file_needs_model_and_motor():
         from_ivar(CONTROLLER_FILE, "TurboPMAC2", motor=3)
 
 
-def test_non_exact_coefficient_rounds_to_the_nearest_word():
-    text = to_ivar(PMACParams()).replace("I136=0 ", "I136=-1.86 ")
-    assert from_ivar(text).notch_n1 == round(-1.86 * 2**22) == -7801405
+def _hand_written(text: str) -> str:
+    """An exported file as a hand-edited copy: title line and end line removed."""
+    return "".join(
+        line + "\n"
+        for line in text.splitlines()
+        if "parameter set" not in line and "servogym-end" not in line
+    )
+
+
+@pytest.mark.parametrize("token", ["-1.86", "1e-9", "0.0000001", "1.5e-7", "-1.8607255"])
+def test_coefficient_that_names_no_single_word_is_refused(token):
+    text = _hand_written(to_ivar(PMACParams())).replace("I136=0 ", f"I136={token} ")
+    with pytest.raises(
+        ParameterError, match=rf"notch_n1 \(Ixx36\) holds multiples of 2\^-22; got {token}"
+    ):
+        from_ivar(text)
+
+
+@pytest.mark.parametrize(
+    ("token", "word"),
+    [("-1.86072540283203125", -7804448), ("-1.8607254028320312", -7804448),
+     ("-1.8607254", -7804448), ("0.5", 2**21), ("5e-1", 2**21), ("2.384185791015625e-7", 1)],
+)  # fmt: skip
+def test_coefficient_exact_or_printed_to_a_unique_word_is_read(token, word):
+    text = _hand_written(to_ivar(PMACParams())).replace("I136=0 ", f"I136={token} ")
+    assert from_ivar(text).notch_n1 == word
 
 
 # --- refusals on export ------------------------------------------------------------------------
@@ -316,11 +339,14 @@ def test_ivar_import_model_disagreement_and_duplicates_that_agree():
     text = to_ivar(PMACParams(model="GeoBrickLV"))
     with pytest.raises(ParameterError, match="disagrees with the file's header"):
         from_ivar(text, "TurboPMAC2")
-    assert from_ivar(text + "I130=2000\n") == PMACParams(model="GeoBrickLV")
+    with pytest.raises(ParameterError, match=r"end line .* is not the last line"):
+        from_ivar(text + "I130=2000\n")
+    assert from_ivar(_hand_written(text) + "I130=2000\n") == PMACParams(model="GeoBrickLV")
 
 
 def _doc(**changes) -> str:
     doc = json.loads(to_json(PMACParams(model="GeoBrickLV"), created=CREATED))
+    del doc["checksum"]  # edited below: read as a hand-written file
     doc.update(changes)
     return json.dumps(doc)
 

@@ -75,6 +75,7 @@ def benchmark_command(
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from servogym._cli_common import check_count, fail
     from servogym.autotune.bench._reference import (
         load_best_known,
         refine_from_runs,
@@ -95,6 +96,12 @@ def benchmark_command(
     from servogym.autotune.bench._suite import get_suite
 
     console = Console()
+    check_count("--seeds", seeds)
+    check_count("--workers", workers)
+    if not [t for t in tuners.split(",") if t.strip()]:
+        fail(f"--tuners must name at least one tuner; got --tuners {tuners!r}.")
+    if out.exists() and not out.is_dir():
+        fail(f"--out {str(out)!r} is a file; give a folder for the benchmark.")
     try:
         s = get_suite(suite)
         ids = s.ids(split)
@@ -102,9 +109,15 @@ def benchmark_command(
         raise typer.BadParameter(str(exc)) from None
     if instance:
         for i in instance:
-            s.spec(i)  # raises with close matches
+            try:
+                s.spec(i)  # raises with close matches
+            except (KeyError, ValueError) as exc:
+                fail(f"--instance: {exc.args[0] if isinstance(exc, KeyError) else exc}")
         ids = [i for i in ids if i in set(instance)]
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        fail(f"--out {str(out)!r} cannot be created: {exc.strerror or exc}.")
     if reference and seed_from is not None:
         t0 = time.perf_counter()
         path = out / f"{suite}.json"

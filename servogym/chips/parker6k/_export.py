@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from servogym import __version__
+from servogym._files import seal, unseal
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
@@ -286,7 +287,7 @@ def to_command_file(
         lines.append(_line("SGSET", str(number), axis, fmt))
     lines += [_register_line(r, getattr(p, r), axis, fmt) for r in GAIN_FIELDS]
     lines += [_register_line(r, getattr(p, r), axis, fmt) for r in ("sgilim", "soffs", "smper")]
-    return "".join(line + "\n" for line in lines)
+    return seal("".join(line + "\n" for line in lines), ";")
 
 
 _COMMAND = re.compile(r"^(\d*)\s*([A-Za-z]+)\s*(.*?)\s*$")
@@ -302,6 +303,7 @@ class _Reader:
         self.space = parameter_space(chip)
         self.values: dict[str, int] = {}
         self.stored: dict[int, GainSet] = {}
+        self.since_store: set[str] = set()  # gains set since the last SGSET
 
     def field(self, where: str, command: str, prefix: str, value: str) -> str | None:
         """The value for this axis, or None when the command leaves this axis alone."""
@@ -342,6 +344,7 @@ class _Reader:
                 check_ssfr(self.values["ssfr"], self.chip.name)
             except ParameterError as exc:
                 raise ParameterError(f"{where}: {exc}") from None
+        self.since_store.add(register)
 
     def set_number(self, where: str, command: str, text: str) -> int:
         if not re.fullmatch(r"\d+", text.strip()):
@@ -358,13 +361,15 @@ class _Reader:
         return number
 
     def store(self, where: str, number: int) -> None:
-        missing = [COMMANDS[g] for g in GAIN_FIELDS if g not in self.values]
+        missing = [COMMANDS[g] for g in GAIN_FIELDS if g not in self.since_store]
         if missing:
             raise ParameterError(
-                f"{where}: SGSET{number} stores the five gains, but the file has not set "
-                f"{', '.join(missing)} before it (an import takes no defaults)."
+                f"{where}: SGSET{number} stores the five gains, but the file does not set "
+                f"{', '.join(missing)} for axis {self.axis} since the previous SGSET; each "
+                f"stored set must give all five (a gain is never taken over from another set)."
             )
         self.stored[number] = GainSet(**{g: self.values[g] for g in GAIN_FIELDS})
+        self.since_store.clear()
 
     def enable(self, where: str, number: int) -> None:
         if number not in self.stored:
@@ -373,6 +378,7 @@ class _Reader:
                 f"stored with SGSET{number} before it."
             )
         self.values.update(self.stored[number].to_dict())
+        self.since_store.update(GAIN_FIELDS)  # SGENB names all five at once
 
 
 def from_command_file(
@@ -406,6 +412,8 @@ def from_command_file(
     fmt = _check_format(fmt)
     if fmt == "json":
         raise ParameterError("from_command_file reads fmt='6250' or fmt='6k'; use from_json.")
+    original = text
+    text, _sealed = unseal(text, verify=False)
     header = read_header(text)
     chip = _resolve_model(model, header)
     _check_form(chip, fmt)
@@ -469,12 +477,14 @@ def from_command_file(
                 f"tick={tick!r} set={number!r}."
             )
         schedule.append((int(tick), int(number)))
-    return Parker6kParams(
+    params = Parker6kParams(
         model=chip.name,
         **reader.values,
         sgset=tuple(reader.stored[i] for i in numbers),
         sgenb=tuple(schedule),
     )
+    unseal(original)
+    return params
 
 
 def _resolve_model(model: str | Parker6kModel | None, header: Mapping[str, Any]) -> Parker6kModel:

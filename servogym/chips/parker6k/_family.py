@@ -40,6 +40,15 @@ class Parker6kFamily(ChipFamily):
     new_state = staticmethod(_kernel.new_state)
     response_function = staticmethod(_response.filter_response)
 
+    def formats_for(self, model: str) -> tuple[str, ...]:
+        """JSON and the 6250 form for every model; the axis-prefixed 6K form for the 6K."""
+        chip = CHIP_MODELS[model]
+        return tuple(f for f in self.formats if f != "6k" or chip.axis_prefix)
+
+    def native_format(self, model: str) -> str:
+        """``"6k"`` for a model that takes axis-prefixed commands, else ``"6250"``."""
+        return "6k" if CHIP_MODELS[model].axis_prefix else "6250"
+
     def profile(self, move: Move, sample_time_s: float) -> _profile.Parker6kProfile:
         ssfr = _profile.ssfr_of(sample_time_s)
         return _profile.move(

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from servogym import __version__
+from servogym._files import seal, unseal
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
@@ -188,7 +189,7 @@ def to_ivar(
         value = getattr(p, name)
         text = coefficient_text(value) if name in COEFFICIENT_FIELDS else str(value)
         out.append(f"{ivar_name(name, motor)}={text} ; {name}")
-    return "\n".join(out) + "\n"
+    return seal("\n".join(out) + "\n", ";")
 
 
 _HEADER_KEY = re.compile(r"^\s*;+\s*([a-z_]+)\s*:\s*(\S.*?)\s*$")
@@ -244,7 +245,7 @@ def _parse_value(field: str, token: str, where: str) -> int:
                 f"{where}: {field} (Ixx{ivar}) must be a decimal coefficient such as -1.86; "
                 f"got {token!r}."
             )
-        return coefficient_raw(Fraction(token))
+        return _coefficient_word(field, ivar, token, where)
     if _INTEGER.match(token):
         return int(token)
     if _HEX.match(token):
@@ -257,6 +258,32 @@ def _parse_value(field: str, token: str, where: str) -> int:
     raise ParameterError(
         f"{where}: {field} must be assigned a constant (decimal or $hex integer); got "
         f"{token!r}. Expressions are not read."
+    )
+
+
+def _coefficient_word(field: str, ivar: int, token: str, where: str) -> int:
+    """The 24-bit word a coefficient text names, refusing text that names none exactly.
+
+    Accepted: the exact decimal of a word (as :func:`coefficient_text` writes it), or a
+    word printed to so many digits that no other word rounds to the same text (a step of
+    the last digit below 2^-22, as a controller prints it). Refused: anything else, e.g.
+    ``-1.86`` or ``1e-9``, which the controller would round to a word the file does not
+    show.
+    """
+    value = Fraction(token)
+    raw = coefficient_raw(value)
+    scale = 1 << COEFFICIENT_FRACTION_BITS
+    if value * scale == raw:
+        return raw
+    mantissa, _, exponent = token.lower().partition("e")
+    decimals = len(mantissa.partition(".")[2])
+    step = Fraction(10) ** (int(exponent or 0) - decimals)  # place of the last digit
+    if step * scale < 1 and abs(value - Fraction(raw, scale)) <= step / 2:
+        return raw
+    raise ParameterError(
+        f"{where}: {field} (Ixx{ivar}) holds multiples of 2^-{COEFFICIENT_FRACTION_BITS}; got "
+        f"{token}, which names no single one (the controller would round it to "
+        f"{coefficient_text(raw)}). Write the exact value, e.g. {coefficient_text(raw)}."
     )
 
 
@@ -296,6 +323,8 @@ def from_ivar(
             non-integer where an integer belongs, an out-of-range value (with its range), a
             register set twice to different values, or a register left unset.
     """
+    original = text
+    text, _sealed = unseal(text, verify=False)
     header = read_header(text)
     named = header.get("chip_model")
     if model is None:
@@ -375,7 +404,9 @@ def from_ivar(
             f"the I-variable file does not set every register of motor {motor}; an import "
             f"takes no defaults. Missing: {listed}."
         )
-    return PMACParams(model=chip.name, **values)
+    params = PMACParams(model=chip.name, **values)
+    unseal(original)
+    return params
 
 
 # --------------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from servogym import __version__
+from servogym._files import seal, unseal
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
@@ -460,7 +461,7 @@ def to_cmotion(
         else:
             lines.append(f"PMD{s.name}({handle}, {s.value});")
     lines.append(f"PMDUpdate({handle});")
-    return "\n".join(lines) + "\n"
+    return seal("\n".join(lines) + "\n", "//")
 
 
 _CALL = re.compile(r"^\s*([A-Za-z_]\w*)\s*\((.*)\)\s*$", re.DOTALL)
@@ -508,9 +509,19 @@ def from_cmotion(text: str, model: str | PMDChipModel | None = None) -> PMDParam
             take, a malformed argument, an illegal value (with its range), a second
             set of a register, or a register left unset.
     """
+    original = text
+    text, _sealed = unseal(text, verify=False)
     chip = _resolve_model(model, read_header(text), "C-Motion snippet")
     code = _C_COMMENT.sub(_blank, text)
-    code = re.sub(r"(?m)^[ \t]*#[^\n]*", _blank, code)  # preprocessor lines
+    for m in re.finditer(r"(?m)^[ \t]*#[ \t]*(\w*)[^\n]*", code):
+        if m.group(1) != "include":
+            line = code.count("\n", 0, m.start()) + 1
+            raise ParameterError(
+                f"line {line}: the preprocessor line {m.group(0).strip()!r} is not read: the "
+                f"importer cannot tell which calls the compiler would keep (#if, #ifdef, "
+                f"#define ...). Remove it; only #include lines are allowed."
+            )
+    code = re.sub(r"(?m)^[ \t]*#[^\n]*", _blank, code)  # #include lines
 
     commands = {c.call: c for c in _commands_for(chip)}
     calls = [*commands, "PMDUpdate"]
@@ -602,7 +613,9 @@ def from_cmotion(text: str, model: str | PMDChipModel | None = None) -> PMDParam
         )
     if handle is None:
         raise ParameterError("the C-Motion snippet contains no calls.")
-    return collect.result("C-Motion snippet")
+    params = collect.result("C-Motion snippet")
+    unseal(original)
+    return params
 
 
 # --------------------------------------------------------------------------------------
@@ -717,7 +730,7 @@ def to_host_text(
     cmds = to_host_commands(p, axis)
     head = _header_lines(p, a, cmds[0].axis, "host commands for one axis")
     head.append("Format: opcode name axis=N data=16-bit words (32-bit values high word first).")
-    return "".join(f"# {line}\n" for line in head) + host_commands_to_text(cmds)
+    return seal("".join(f"# {line}\n" for line in head) + host_commands_to_text(cmds), "#")
 
 
 _HOST_LINE = re.compile(
@@ -869,8 +882,11 @@ def from_host_text(text: str, model: str | PMDChipModel | None = None) -> PMDPar
     Raises:
         ParameterError: naming the line, as :func:`from_host_commands` does.
     """
-    chip = _resolve_model(model, read_header(text), "host-command text")
-    return _decode_commands(_parse_host_text(text), chip)
+    body, _sealed = unseal(text, verify=False)
+    chip = _resolve_model(model, read_header(body), "host-command text")
+    params = _decode_commands(_parse_host_text(body), chip)
+    unseal(text)
+    return params
 
 
 # --------------------------------------------------------------------------------------
