@@ -72,6 +72,18 @@ def forward(m_addr, d_addr, full):
 
 
 @njit(cache=True, nogil=True)
+def _middle_stage(qpos, qvel, qacc, x0, v0, sx, sv, nv, step):
+    """RK4's stages 2 and 3: add twice the slopes, move to ``x0 + step * slope``."""
+    for i in range(nv):
+        kx = qvel[i]
+        kv = qacc[i]
+        sx[i] += 2.0 * kx
+        sv[i] += 2.0 * kv
+        qpos[i] = x0[i] + step * kx
+        qvel[i] = v0[i] + step * kv
+
+
+@njit(cache=True, nogil=True)
 def rk4_substep(
     m_addr, d_addr, qpos, qvel, qacc, qacc_warm, ctrl, ctrl_index, nv, kt, u, h, full, work
 ):
@@ -102,21 +114,9 @@ def rk4_substep(
         qvel[i] = v0[i] + half * qacc[i]
     ctrl[ctrl_index] = kt * u[1]
     forward(m_addr, d_addr, full)
-    for i in range(nv):
-        kx = qvel[i]
-        kv = qacc[i]
-        sx[i] += 2.0 * kx
-        sv[i] += 2.0 * kv
-        qpos[i] = x0[i] + half * kx
-        qvel[i] = v0[i] + half * kv
+    _middle_stage(qpos, qvel, qacc, x0, v0, sx, sv, nv, half)
     forward(m_addr, d_addr, full)
-    for i in range(nv):
-        kx = qvel[i]
-        kv = qacc[i]
-        sx[i] += 2.0 * kx
-        sv[i] += 2.0 * kv
-        qpos[i] = x0[i] + h * kx
-        qvel[i] = v0[i] + h * kv
+    _middle_stage(qpos, qvel, qacc, x0, v0, sx, sv, nv, h)
     ctrl[ctrl_index] = kt * u[2]
     forward(m_addr, d_addr, full)
     sixth = h / 6.0
