@@ -215,4 +215,5 @@ def family_of(params: Any) -> ChipFamily:
 def _load_builtin() -> None:
     # Importing a family's package registers it.
     import servogym.chips.parker6k
+    import servogym.chips.pmac
     import servogym.chips.pmd  # noqa: F401
