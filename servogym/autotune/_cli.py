@@ -73,7 +73,19 @@ def tune_command(
     ] = None,
     storage: Annotated[
         str | None,
-        typer.Option("--storage", help="Optuna RDB URL [default: sqlite:///OUT/study.db]."),
+        typer.Option(
+            "--storage",
+            help="Journal file path or Optuna RDB URL (sqlite:///..., postgresql://...) "
+            "[default: OUT/study.journal].",
+        ),
+    ] = None,
+    study_name: Annotated[
+        str | None,
+        typer.Option(
+            "--study-name",
+            help="Study to create or join: several workers with the same --storage and "
+            "--study-name share one study and its budget [default: servogym-<OUT name>].",
+        ),
     ] = None,
     resume: Annotated[
         bool, typer.Option("--resume", help="Continue the interrupted study of this run.")
@@ -102,7 +114,7 @@ def tune_command(
     console = Console()
 
     def fail(message: str) -> None:
-        console.print(f"[red]error:[/red] {message}", highlight=False)
+        console.print(f"[red]error:[/red] {message}", highlight=False, soft_wrap=True)
         raise typer.Exit(code=2)
 
     try:
@@ -131,8 +143,13 @@ def tune_command(
             fix=parse_fix(fix),
             search=tuple(search) if search else None,
             batch_size=batch_size,
+            study_name=study_name,
         )
         config.problem()  # validate everything before the progress bar
+        if storage is not None:
+            from servogym.autotune._session import open_storage
+
+            open_storage(storage)
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
         return

@@ -33,6 +33,7 @@ timing (every trial is still asked by a seeded sampler; no two workers repeat on
 
 from __future__ import annotations
 
+import bisect
 import concurrent.futures as cf
 import contextlib
 import dataclasses
@@ -184,8 +185,8 @@ def _retry_callback() -> Any:
 def open_storage(
     url: str | None,
     *,
-    heartbeat_interval: int = HEARTBEAT_INTERVAL_S,
-    grace_period: int = GRACE_PERIOD_S,
+    heartbeat_interval: int | None = None,
+    grace_period: int | None = None,
 ) -> Any:
     """The Optuna storage for ``url``, with heartbeats, or a :class:`TuneError` in one line.
 
@@ -195,15 +196,18 @@ def open_storage(
             machine or over NFS); or an RDB URL: ``sqlite:///path/study.db``,
             ``postgresql://user:password@host/db`` (needs ``pip install 'servogym[postgres]'``),
             ``mysql+pymysql://...``.
-        heartbeat_interval: Seconds between heartbeats of a running trial.
+        heartbeat_interval: Seconds between heartbeats of a running trial (default
+            :data:`HEARTBEAT_INTERVAL_S`).
         grace_period: Seconds without a heartbeat after which a running trial is failed and
-            queued again.
+            queued again (default :data:`GRACE_PERIOD_S`).
 
     A SQLite file is switched to write-ahead logging with ``synchronous=NORMAL`` and waits
     up to 60 s for a lock, so several processes can share it.
     """
     import optuna
 
+    heartbeat_interval = heartbeat_interval or HEARTBEAT_INTERVAL_S
+    grace_period = grace_period or GRACE_PERIOD_S
     if url is None:
         return optuna.storages.InMemoryStorage()
     if not isinstance(url, str):
@@ -226,20 +230,19 @@ def open_storage(
 def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:
     import optuna
 
-    scheme = url.split("://", 1)[0]
+    shown = _redact(url)
+    scheme, _, rest = url.partition("://")
     if scheme in ("postgresql", "postgres"):
-        url = "postgresql://" + url.split("://", 1)[1]
-        try:
-            import psycopg2  # noqa: F401  (SQLAlchemy's default driver for postgresql://)
-        except ImportError:
-            try:
-                import psycopg  # noqa: F401
-            except ImportError:
-                raise TuneError(
-                    f"the storage {_redact(url)!r} needs a PostgreSQL driver: "
-                    "pip install 'servogym[postgres]'."
-                ) from None
-            url = "postgresql+psycopg://" + url.split("://", 1)[1]
+        # Whichever driver is installed (SQLAlchemy 2.0 defaults to psycopg2, 2.1 to psycopg).
+        import importlib.util
+
+        drivers = [d for d in ("psycopg", "psycopg2") if importlib.util.find_spec(d)]
+        if not drivers:
+            raise TuneError(
+                f"the storage {shown!r} needs a PostgreSQL driver: "
+                "pip install 'servogym[postgres]'."
+            )
+        url = f"postgresql+{drivers[0]}://{rest}"
     kwargs: dict[str, Any] = {}
     if scheme == "sqlite":
         kwargs["connect_args"] = {"timeout": 60}
@@ -257,7 +260,7 @@ def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:
             break
         except ImportError as exc:
             raise TuneError(
-                f"cannot open the study storage {_redact(url)!r}: its database driver is "
+                f"cannot open the study storage {shown!r}: its database driver is "
                 f"missing ({exc}); for postgresql:// pip install 'servogym[postgres]'."
             ) from None
         except Exception as exc:  # SQLAlchemy's errors: bad URL, unreachable server, races
@@ -265,7 +268,7 @@ def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:
                 time.sleep(0.1 * (attempt + 1))  # another process is creating the schema
                 continue
             raise TuneError(
-                f"cannot open the study storage {_redact(url)!r}: {_one_line(exc)}"
+                f"cannot open the study storage {shown!r}: {_one_line(exc)}"
             ) from None
     if scheme == "sqlite":
         from sqlalchemy import event
@@ -382,9 +385,10 @@ class Session:
         progress: Called after every finished trial.
         evaluator_factory: Builds one evaluator per thread (default
             :class:`servogym.sim.Evaluator`).
-        heartbeat_interval: Seconds between heartbeats of a running trial.
+        heartbeat_interval: Seconds between heartbeats of a running trial (default
+            :data:`HEARTBEAT_INTERVAL_S`).
         grace_period: Seconds without a heartbeat after which another worker fails a
-            running trial and queues it again.
+            running trial and queues it again (default :data:`GRACE_PERIOD_S`).
         shared: Whether other processes may work on the study at the same time (the
             classical tuners, sequential procedures, cannot).
     """
@@ -404,8 +408,8 @@ class Session:
         warm_start: Mapping[str, int] | None = None,
         progress: ProgressCallback | None = None,
         evaluator_factory: Callable[[Any], Any] = Evaluator,
-        heartbeat_interval: int = HEARTBEAT_INTERVAL_S,
-        grace_period: int = GRACE_PERIOD_S,
+        heartbeat_interval: int | None = None,
+        grace_period: int | None = None,
         shared: bool = True,
     ) -> None:
         batch_size_given = batch_size is not None
@@ -489,6 +493,7 @@ class Session:
         self._heartbeat_stop = threading.Event()
         self._heartbeat_thread: threading.Thread | None = None
         self._beat_at_ask = False
+        self._uncounted: list[int] = []
         self._tell_time_s = 0.0
         self._ask_time_s = 0.0
 
@@ -577,6 +582,7 @@ class Session:
             optuna.storages.fail_stale_trials(self.study)
         trials = self.study.get_trials(deepcopy=False)
         counted = [t for t in trials if counts_toward_budget(t)]
+        self._uncounted = sorted(t.number for t in trials if not counts_toward_budget(t))
         self._n_counted = len(counted)
         self._n_finished = sum(t.state.is_finished() for t in counted)
         for t in counted:
@@ -768,7 +774,6 @@ class Session:
         import optuna
 
         pending: list[_Pending] = []
-        expected = None if counted is None else max((t.number for t in counted), default=-1) + 1
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", category=Warning)
@@ -784,11 +789,12 @@ class Session:
                 frozen_attrs = frozen.system_attrs
                 kind = trial.user_attrs.get("kind", "sample")
                 queued = kind == "warm_start" or "failed_trial" in frozen_attrs
-                if not queued and expected is not None and trial.number != expected:
-                    # Another worker asked meanwhile: is this trial still within the budget?
-                    before = [t for t in self.study.get_trials(deepcopy=False)
-                              if t.number < trial.number and counts_toward_budget(t)]  # fmt: skip
-                    if len(before) >= self.budget:
+                if not queued and counted is not None:
+                    # Within the budget? Trial numbers are dense and unique in a storage, so
+                    # the trials before this one that count are its number minus those that
+                    # do not (failed ones never count again: a conservative bound).
+                    rank = trial.number - bisect.bisect_left(self._uncounted, trial.number)
+                    if rank >= self.budget:
                         trial.set_user_attr("over_budget", True)
                         trial.set_user_attr("note", "asked when other workers had taken the "
                                             "whole budget; not evaluated")  # fmt: skip
@@ -796,8 +802,6 @@ class Session:
                         with self._running_lock:
                             self._running.pop(trial._trial_id, None)
                         break
-                if expected is not None:
-                    expected = trial.number + 1
                 if kind == "warm_start":
                     values = {k: int(v) for k, v in trial.user_attrs["registers"].items()}
                 else:
