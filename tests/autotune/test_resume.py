@@ -117,9 +117,7 @@ def test_an_interrupted_classical_run_resumes_to_the_same_study(tmp_path):
 
 
 @pytest.mark.parametrize("tuner", ["sobol", "tpe"])
-def test_an_interrupted_sampler_requeues_its_trials_and_a_resume_evaluates_them(
-    tmp_path, tuner
-):
+def test_an_interrupted_sampler_requeues_its_trials_and_a_resume_evaluates_them(tmp_path, tuner):
     url = str(tmp_path / "study.journal")
     problem = short_problem(seed=2)
 

@@ -33,7 +33,9 @@ def run_workers(url: str, budget: int, n: int = 3) -> list[dict]:
     procs = [
         subprocess.Popen(
             [sys.executable, "-c", WORKER.format(root=ROOT, budget=budget, url=url)],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
         )  # fmt: skip
         for _ in range(n)
     ]
@@ -96,8 +98,10 @@ def test_a_worker_with_other_settings_or_a_classical_tuner_cannot_join(tmp_path)
     ("url", "message"),
     [
         ("nosuchdb://x/y", "cannot open the study storage 'nosuchdb://x/y': "),
-        ("postgresql://u:secret@127.0.0.1:1/db", "cannot open the study storage "
-         "'postgresql://u:\\*\\*\\*@127.0.0.1:1/db': "),
+        (
+            "postgresql://u:secret@127.0.0.1:1/db",
+            "cannot open the study storage 'postgresql://u:\\*\\*\\*@127.0.0.1:1/db': ",
+        ),
         ("sqlite:////no/such/folder/study.db", "cannot open the study storage "),
         ("/no/such/folder/study.journal", "the folder '/no/such/folder' does not exist"),
     ],
