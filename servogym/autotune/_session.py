@@ -354,7 +354,6 @@ def per_trial_sampler(make_sampler: Callable[[int], Any], seed: int) -> Any:
     is built in ``before_trial``; every other call goes to it.
     """
     import optuna
-
     from optuna.search_space import IntersectionSearchSpace
 
     class _PerTrialSeeded(optuna.samplers.BaseSampler):
@@ -581,7 +580,7 @@ class Session:
                                 "kind": "warm_start",
                                 "registers": values,
                                 "note": "warm start",
-                            },  # fmt: skip
+                            },
                         )
                 study.set_user_attr(CONFIG_KEY, config)  # last: joiners wait for it
                 return study, True
@@ -674,7 +673,7 @@ class Session:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
                         retry(self.study, storage.get_trial(tid))
-            except Exception:  # noqa: S110  (already finished, or the storage is gone)
+            except Exception:
                 logger.debug("could not re-queue trial %s", tid, exc_info=True)
 
     # ---------------------------------------------------------------- evaluation

@@ -36,7 +36,7 @@ def run_workers(url: str, budget: int, n: int = 3) -> list[dict]:
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-        )  # fmt: skip
+        )
         for _ in range(n)
     ]
     outs = []

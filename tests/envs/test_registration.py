@@ -18,10 +18,10 @@ DOCS = pathlib.Path(__file__).resolve().parents[2] / "docs" / "envs.md"
 
 
 def test_the_import_time_tables_are_the_registries():
-    assert _registration.BUILTIN_FAMILIES == {
+    assert {
         f.name: (envs.family_id_name(f), default_model(f)) for f in families().values()
-    }
-    assert _registration.BUILTIN_PLANTS == tuple(PLANTS)
+    } == _registration.BUILTIN_FAMILIES
+    assert tuple(PLANTS) == _registration.BUILTIN_PLANTS
     assert sorted(_registration.register_builtin()) == envs.registered_ids()
 
 
