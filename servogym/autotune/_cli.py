@@ -33,7 +33,8 @@ def tune_command(
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of samplers and plant draws.")] = 0,
     workers: Annotated[
-        int | None, typer.Option("--workers", help="Evaluation threads [default: all cores].")
+        int | None,
+        typer.Option("--workers", help="Evaluation threads.", show_default="all cores"),
     ] = None,
     robust: Annotated[
         int,
@@ -53,7 +54,8 @@ def tune_command(
         float | None,
         typer.Option(
             "--max-following-error",
-            help="Constraint (counts) [default: 1 % of the longest move].",
+            help="Constraint (counts).",
+            show_default="1 % of the longest move",
         ),
     ] = None,
     max_saturation: Annotated[
@@ -75,8 +77,8 @@ def tune_command(
         str | None,
         typer.Option(
             "--storage",
-            help="Journal file path or Optuna RDB URL (sqlite:///..., postgresql://...) "
-            "[default: OUT/study.journal].",
+            help="Journal file path or Optuna RDB URL (sqlite:///..., postgresql://...).",
+            show_default="OUT/study.journal",
         ),
     ] = None,
     study_name: Annotated[
@@ -84,7 +86,8 @@ def tune_command(
         typer.Option(
             "--study-name",
             help="Study to create or join: several workers with the same --storage and "
-            "--study-name share one study and its budget [default: servogym-<OUT name>].",
+            "--study-name share one study and its budget.",
+            show_default="servogym-<OUT name>",
         ),
     ] = None,
     resume: Annotated[
@@ -100,10 +103,15 @@ def tune_command(
     ] = None,
     batch_size: Annotated[
         int | None,
-        typer.Option("--batch-size", help="Trials a sampler asks at once [default: 8]."),
+        typer.Option("--batch-size", help="Trials a sampler asks at once.", show_default="8"),
     ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the run's summary.json for machines.")
+    ] = False,
 ) -> None:
     """Tune a chip's parameters on a simulated plant and write the tuned set with reports."""
+    import json
+
     from rich.console import Console
 
     from servogym.autotune._job import TuneConfig, parse_fix, parse_plant_params, tune
@@ -170,7 +178,7 @@ def tune_command(
         TextColumn("best cost {task.fields[best]}"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
-        console=console,
+        console=Console(stderr=True) if as_json else console,
     )
     task = progress.add_task("tune", total=budget, best="-")
 
@@ -191,12 +199,22 @@ def tune_command(
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
         return
+    if as_json:
+        typer.echo(json.dumps(summary, indent=2, default=str))
+        return
     console.print(summary_heading(summary), highlight=False)
     console.print(summary_table(summary))
     if not summary["feasible"]:
         console.print(
             "[yellow]warning:[/yellow] no trial met the constraints; the best cost is shown. "
             "Raise the budget or relax --max-following-error / --max-saturation."
+        )
+    if summary["n_trials"] < budget:
+        console.print(
+            f"[cyan]note:[/cyan] the {tuner} procedure finished after {summary['n_trials']} of "
+            f"{budget} evaluations: a classical tuner stops when its procedure is done, and "
+            "the rest of the budget is not used.",
+            highlight=False,
         )
     for name in summary["files"].values():
         console.print(f"wrote {out / name}", highlight=False)

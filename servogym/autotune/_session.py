@@ -616,10 +616,15 @@ class Session:
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
+            before = len(self._uncounted)
             optuna.storages.fail_stale_trials(self.study)
         trials = self.study.get_trials(deepcopy=False)
         counted = [t for t in trials if counts_toward_budget(t)]
         self._uncounted = sorted(t.number for t in trials if not counts_toward_budget(t))
+        if len(self._uncounted) > before and before:
+            logger.info(
+                "%d abandoned trial(s) failed and queued again", len(self._uncounted) - before
+            )
         self._n_counted = len(counted)
         self._n_finished = sum(t.state.is_finished() for t in counted)
         for t in counted:
@@ -782,6 +787,7 @@ class Session:
         """
         self.study.sampler = per_trial_sampler(make_sampler, self.problem.seed)
         dists = self.problem.space.distributions()
+        waited = False
         while True:
             counted = self._refresh()
             self._report()
@@ -790,6 +796,12 @@ class Session:
             waiting = sum(t.state.name == "WAITING" for t in counted)
             n = min(self.batch_size, self.budget - len(counted) + waiting)
             if n <= 0:
+                if not waited:
+                    logger.info(
+                        "waiting for %d trial(s) running on other workers",
+                        len(counted) - self._n_finished,
+                    )
+                    waited = True
                 time.sleep(POLL_S)  # the rest of the budget runs on other workers
                 continue
             self._run_batch(n, dists, counted)
