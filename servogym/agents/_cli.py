@@ -64,6 +64,9 @@ def train_command(
     checkpoint_every: Annotated[int, typer.Option(min=1, help="Checkpoint interval (steps).")] = (
         10_000
     ),
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the saved model and run folder as JSON.")
+    ] = False,
 ) -> None:
     """Train an SB3 agent on a servogym env, with a progress bar, checkpoints and TensorBoard."""
     from servogym.agents._train import ALGOS, train
@@ -82,7 +85,12 @@ def train_command(
         algo_kwargs=_json_option(algo_kwargs, "--algo-kwargs"),
         wall_time_s=None if minutes is None else minutes * 60.0,
         checkpoint_every=checkpoint_every,
+        progress_bar=not as_json,
     )
+    if as_json:
+        typer.echo(json.dumps({"model": str(path), "out": str(out), "env": env,
+                               "algo": algo.lower(), "timesteps": timesteps, "seed": seed}))  # fmt: skip
+        return
     console.print(f"saved {path}")
 
 
@@ -143,7 +151,19 @@ def evaluate_command(
         policies["policy"] = load_policy(model)
     policies.update(baseline_policies(e, extra))
     seeds = range(seed, seed + episodes)
-    results = {name: summarize(run_episodes(e, p, seeds)) for name, p in policies.items()}
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    progress = Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        console=Console(stderr=True), transient=True,
+    )  # fmt: skip
+    results = {}
+    with progress:
+        task = progress.add_task("episodes", total=len(policies) * episodes)
+        for name, p in policies.items():
+            progress.update(task, description=f"evaluate {name}")
+            outcomes = run_episodes(e, p, seeds, on_episode=lambda: progress.advance(task))
+            results[name] = summarize(outcomes)
     if as_json:
         typer.echo(json.dumps({"env": env, "seeds": [seed, seed + episodes - 1], **results}))
         return
