@@ -197,7 +197,8 @@ def _journal_backend(path: Path) -> Any:
                 return iter(())
             return super().read_logs(log_number_from)
 
-    return _Backend(str(path), _FlockLock(str(path) + ".lock"))
+    # Not Optuna's ".lock" name: optuna-dashboard opening the file uses a symlink lock there.
+    return _Backend(str(path), _FlockLock(str(path) + ".flock"))
 
 
 def _retry_callback() -> Any:
