@@ -24,6 +24,7 @@ def test_trials_dataframe_and_the_dashboard_show_register_values(tmp_path):
     frame = study.trials_dataframe()
     assert len(frame) == 6 and "user_attrs_registers" in frame.columns
     assert frame["user_attrs_registers"][0] == result.trials[0].user_attrs["registers"]
-    shown = serialize_frozen_trial(study._study_id, trials[0], study.system_attrs)
+    system = study._storage.get_study_system_attrs(study._study_id)
+    shown = serialize_frozen_trial(study._study_id, trials[0], system)
     attrs = {a["key"]: a["value"] for a in shown["user_attrs"]}
     assert json.loads(attrs["registers"])["kp"] == trials[0].user_attrs["registers"]["kp"]
