@@ -88,8 +88,9 @@ def train_command(
         progress_bar=not as_json,
     )
     if as_json:
-        typer.echo(json.dumps({"model": str(path), "out": str(out), "env": env,
-                               "algo": algo.lower(), "timesteps": timesteps, "seed": seed}))  # fmt: skip
+        doc = {"model": str(path), "out": str(out), "env": env, "algo": algo.lower(),
+               "timesteps": timesteps, "seed": seed}  # fmt: skip
+        typer.echo(json.dumps(doc))
         return
     console.print(f"saved {path}")
 
