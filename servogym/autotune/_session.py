@@ -753,6 +753,22 @@ class Session:
 
     def _finish(self, trial: Any, outcome: Outcome, kind: str, extra: Mapping[str, Any]) -> None:
         """Attach an outcome to a running trial and tell it."""
+        import optuna
+
+        try:
+            self._tell(trial, outcome, kind, extra)
+        except optuna.exceptions.UpdateFinishedTrialError:
+            # Another worker found no heartbeat for it and failed it; its retry counts.
+            logger.warning(
+                "trial %d was failed as abandoned by another worker (no heartbeat for %s s); "
+                "its queued copy is evaluated instead",
+                trial.number,
+                self.study._storage.get_heartbeat_interval() if self._heartbeats_on() else "?",
+            )
+            with self._running_lock:
+                self._running.pop(trial._trial_id, None)
+
+    def _tell(self, trial: Any, outcome: Outcome, kind: str, extra: Mapping[str, Any]) -> None:
         t0 = time.thread_time()
         trial.set_user_attr("kind", kind)
         trial.set_user_attr("registers", outcome.values)
