@@ -140,9 +140,10 @@ def _journal_storage_class() -> type:
             now = time.time()
             stale = []
             for t in self.get_all_trials(study_id, deepcopy=False, states=(TrialState.RUNNING,)):
-                beat = t.system_attrs.get(HEARTBEAT_KEY)
-                if beat is None and t.datetime_start is not None:
-                    beat = t.datetime_start.timestamp()
+                beats = [t.system_attrs.get(HEARTBEAT_KEY)]
+                if t.datetime_start is not None:
+                    beats.append(t.datetime_start.timestamp())
+                beat = max((b for b in beats if b is not None), default=None)
                 if beat is not None and now - beat > self._grace_period:
                     stale.append(t._trial_id)
             return stale
@@ -202,13 +203,27 @@ def _journal_backend(path: Path) -> Any:
 
 
 def _retry_callback() -> Any:
+    """Optuna's retry of a stale trial, queuing a copy without the old trial's constraints,
+    heartbeat and sampler state (only its parameters, user attributes and retry history)."""
+    import copy
+
     try:
         from optuna.storages import RetryHeartbeatStaleTrialCallback as Retry
     except ImportError:  # Optuna < 4.9
         from optuna.storages import RetryFailedTrialCallback as Retry
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return Retry(max_retry=MAX_RETRY)
+        retry = Retry(max_retry=MAX_RETRY)
+
+    def callback(study: Any, trial: Any) -> None:
+        trial = copy.copy(trial)
+        keep = ("failed_trial", "retry_history")
+        trial._system_attrs = {k: v for k, v in trial.system_attrs.items() if k in keep}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            retry(study, trial)
+
+    return callback
 
 
 def open_storage(

@@ -91,7 +91,8 @@ def test_a_killed_worker_loses_nothing_its_running_trials_are_retried(
     for old in running:  # failed for the dead worker, then evaluated once with its parameters
         assert by_number[old.number].state.name == "FAIL"
         (retry,) = [t for t in counted if t.system_attrs.get("failed_trial") == old.number]
-        assert retry.params == old.params
+        if old.params:  # (a trial killed before its parameters were written is asked anew)
+            assert retry.params == old.params
     params = [tuple(sorted(t.params.items())) for t in counted]
     assert len(set(params)) == len(params)  # no parameter set evaluated twice
 
