@@ -13,7 +13,12 @@ import numpy as np
 
 from servogym import __version__
 from servogym.autotune._problem import TuneProblem
-from servogym.autotune._session import is_feasible, pareto_front, scored_trials
+from servogym.autotune._session import (
+    counts_toward_budget,
+    is_feasible,
+    pareto_front,
+    scored_trials,
+)
 from servogym.autotune._space import UNIT_PREFIX
 from servogym.chips._family import get_chip
 from servogym.sim._scenario import Evaluation, Evaluator
@@ -30,6 +35,11 @@ TABLE_METRICS = (
     ("chatter", "chatter (fraction/tick)"),
 )
 """Rows of the default-vs-tuned table: (key of :func:`evaluation_metrics`, label)."""
+
+
+def _n_counted(trials: list[Any]) -> int:
+    """Trials that used the budget (not a dead worker's re-queued or an over-budget one)."""
+    return sum(map(counts_toward_budget, trials))
 
 
 def export_names(family: Any) -> dict[str, str]:
@@ -187,7 +197,7 @@ def write_outputs(result: Any, out: Path, config: Any) -> dict[str, Any]:
     notes = {
         "tuner": result.tuner,
         "seed": problem.seed,
-        "n_trials": len(result.trials),
+        "n_trials": _n_counted(result.trials),
         "best_trial": result.best.number,
         "feasible": result.feasible,
         "cost": tuned_metrics["cost"],
@@ -234,7 +244,7 @@ def write_outputs(result: Any, out: Path, config: Any) -> dict[str, Any]:
         "tuner": result.tuner,
         "seed": problem.seed,
         "budget": getattr(config, "budget", len(result.trials)),
-        "n_trials": len(result.trials),
+        "n_trials": _n_counted(result.trials),
         "kinds": _count_kinds(result.trials),
         "best_trial": result.best.number,
         "feasible": result.feasible,
