@@ -96,8 +96,15 @@ def trial_seed(seed: int, number: int) -> int:
 
 
 def default_storage_url(out_dir: str | Path) -> str:
-    """``DIR/study.journal``, the default storage of a run folder (an Optuna journal file)."""
-    return str((Path(out_dir) / "study.journal").resolve())
+    """``DIR/study.journal``, the default storage of a run folder (an Optuna journal file).
+
+    A run folder written by servogym 0.1 before studies were shared holds ``study.db``
+    instead; its SQLite URL is returned then, so ``--resume`` continues it.
+    """
+    folder = Path(out_dir).resolve()
+    if (folder / "study.db").exists() and not (folder / "study.journal").exists():
+        return f"sqlite:///{folder / 'study.db'}"
+    return str(folder / "study.journal")
 
 
 def counts_toward_budget(trial: Any) -> bool:

@@ -28,3 +28,21 @@ def test_trials_dataframe_and_the_dashboard_show_register_values(tmp_path):
     shown = serialize_frozen_trial(study._study_id, trials[0], system)
     attrs = {a["key"]: a["value"] for a in shown["user_attrs"]}
     assert json.loads(attrs["registers"])["kp"] == trials[0].user_attrs["registers"]["kp"]
+
+
+def test_a_run_folder_of_the_sqlite_era_resumes_from_its_study_db(tmp_path):
+    from servogym.autotune import default_storage_url
+
+    assert default_storage_url(tmp_path) == str(tmp_path.resolve() / "study.journal")
+    url = f"sqlite:///{tmp_path.resolve() / 'study.db'}"
+    run_study(short_problem(seed=4), "random", 3, storage=url, study_name="s")
+    assert default_storage_url(tmp_path) == url
+    more = run_study(short_problem(seed=4), "random", 5, storage=default_storage_url(tmp_path),
+                     study_name="s", resume=True)  # fmt: skip
+    assert len(more.trials) == 5
+
+
+def test_the_package_ships_its_type_marker():
+    import importlib.resources
+
+    assert importlib.resources.files("servogym").joinpath("py.typed").is_file()
