@@ -61,13 +61,52 @@ app = typer.Typer(
     cls=_Group,
     help="Tune real motion-controller chips in simulation: exact chip filters on MuJoCo plants.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,  # --install-completion / --show-completion for bash, zsh, fish
     pretty_exceptions_enable=False,
     rich_markup_mode=None,  # usage errors as one plain line, not a wrapped rich panel
 )
 console = Console()
 if not console.is_terminal:  # pipes and CI logs: wide enough for the parameter tables
     console.width = 130
+
+
+def _version(value: bool) -> None:
+    if value:
+        from servogym import __version__
+
+        typer.echo(f"servogym {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+    ] = False,
+    verbose: Annotated[
+        int, typer.Option("--verbose", "-v", count=True, help="More log output (-v, -vv).")
+    ] = 0,
+) -> None:
+    """Tune real motion-controller chips in simulation: exact chip filters on MuJoCo plants."""
+    setup_logging(verbose)
+
+
+def setup_logging(verbose: int = 0) -> None:
+    """Render the library's ``logging`` records (logger ``servogym``) with rich on stderr:
+    warnings by default, info with ``-v``, debug with ``-vv``."""
+    import logging
+
+    from rich.logging import RichHandler
+
+    logger = logging.getLogger("servogym")
+    for handler in list(logger.handlers):
+        if isinstance(handler, RichHandler):
+            logger.removeHandler(handler)
+    handler = RichHandler(console=Console(stderr=True), show_path=False, show_time=verbose > 1)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel([logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)])
 
 
 def _fail(message: str) -> None:
@@ -198,6 +237,9 @@ def export(
     force: Annotated[
         bool, typer.Option("--force", help="Replace --out if it exists (never the input).")
     ] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print JSON for machines: format, chip, text, file.")
+    ] = False,
 ) -> None:
     """Export a parameter file in the form the hardware takes (written atomically)."""
     from servogym._files import check_target, write_atomic
@@ -216,7 +258,11 @@ def export(
     except (ParameterError, ValueError, OSError) as exc:
         _fail(str(exc))
         return
-    if out is None:
+    if as_json:
+        doc = {"format": target, "chip_model": loaded.params.model, "chip_family": family.name,
+               "file": None if out is None else str(out), "text": text}  # fmt: skip
+        typer.echo(json.dumps(doc, indent=2))
+    elif out is None:
         typer.echo(text, nl=not text.endswith("\n"))
     else:
         console.print(f"wrote {out}", highlight=False)
@@ -309,15 +355,35 @@ def simulate(
         return
     table = Table(title=f"{model} on {plant}: cost {result.cost:.3f}", title_justify="left")
     table.add_column("metric")
+    table.add_column("unit")
     for i in range(len(result.metrics)):
         table.add_column(f"move {i + 1}", justify="right")
     for name in result.metrics[0].to_dict():
         if name == "dt":
             continue
-        row = [name] + [_fmt(m.to_dict()[name]) for m in result.metrics]
-        table.add_row(*row, *[""] * (len(result.metrics) - len(row) + 1))
+        row = [name, METRIC_UNITS.get(name, "")] + [_fmt(m.to_dict()[name]) for m in result.metrics]
+        table.add_row(*row)
     console.print(table)
     console.print(f"wrote {out / 'response.png'} and {out / 'metrics.json'}")
+
+
+METRIC_UNITS = {
+    "iae": "counts*s",
+    "itae": "counts*s^2",
+    "max_following_error": "counts",
+    "overshoot": "counts",
+    "settling_time": "s",
+    "steady_state_error": "counts",
+    "rms_command": "of full scale",
+    "saturation_fraction": "of ticks",
+    "chatter": "full scale/tick",
+    "settled": "",
+    "diverged": "",
+    "divergence_tick": "tick",
+    "divergence_reason": "",
+    "n_ticks": "ticks",
+}
+"""Unit of every per-move metric in ``simulate``'s table (``EpisodeMetrics``; docs/cost.md)."""
 
 
 @app.command()

@@ -65,6 +65,9 @@ def train_command(
     checkpoint_every: Annotated[int, typer.Option(min=1, help="Checkpoint interval (steps).")] = (
         10_000
     ),
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the saved model and run folder as JSON.")
+    ] = False,
 ) -> None:
     """Train an SB3 agent on a servogym env, with a progress bar, checkpoints and TensorBoard."""
     from servogym._cli_common import check_count, check_number
@@ -83,11 +86,16 @@ def train_command(
     _check_algo_kwargs(algo, algo_kw)
     try:
         path = _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes,
-                      checkpoint_every)  # fmt: skip
+                      checkpoint_every, as_json)  # fmt: skip
     except (TypeError, ValueError) as exc:
         _fail(f"--algo-kwargs {json.dumps(algo_kw)}: {exc}")
     except OSError as exc:
         _fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
+    if as_json:
+        doc = {"model": str(path), "out": str(out), "env": env, "algo": algo.lower(),
+               "timesteps": timesteps, "seed": seed}  # fmt: skip
+        typer.echo(json.dumps(doc))
+        return
     console.print(f"saved {path}")
 
 
@@ -116,7 +124,9 @@ def _check_algo_kwargs(algo: str, kwargs: dict[str, Any]) -> None:
         )
 
 
-def _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes, checkpoint_every):
+def _train(
+    env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes, checkpoint_every, as_json
+):
     from servogym.agents._train import train
 
     return train(
@@ -130,6 +140,7 @@ def _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes, ch
         algo_kwargs=algo_kw,
         wall_time_s=None if minutes is None else minutes * 60.0,
         checkpoint_every=checkpoint_every,
+        progress_bar=not as_json,
     )
 
 
@@ -205,7 +216,19 @@ def evaluate_command(
     except ValueError as exc:
         _fail(f"--fixed {str(fixed)!r}: {exc}")
     seeds = range(seed, seed + episodes)
-    results = {name: summarize(run_episodes(e, p, seeds)) for name, p in policies.items()}
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    progress = Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        console=Console(stderr=True), transient=True,
+    )  # fmt: skip
+    results = {}
+    with progress:
+        task = progress.add_task("episodes", total=len(policies) * episodes)
+        for name, p in policies.items():
+            progress.update(task, description=f"evaluate {name}")
+            outcomes = run_episodes(e, p, seeds, on_episode=lambda: progress.advance(task))
+            results[name] = summarize(outcomes)
     if as_json:
         typer.echo(json.dumps({"env": env, "seeds": [seed, seed + episodes - 1], **results}))
         return

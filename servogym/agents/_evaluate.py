@@ -57,8 +57,13 @@ class ModelPolicy:
         return action
 
 
-def run_episodes(env: Any, policy: Policy, seeds: Iterable[int]) -> list[EpisodeOutcome]:
-    """Run one episode per seed (``env.reset(seed=s)``) and collect the outcomes."""
+def run_episodes(
+    env: Any, policy: Policy, seeds: Iterable[int], on_episode: Callable[[], Any] | None = None
+) -> list[EpisodeOutcome]:
+    """Run one episode per seed (``env.reset(seed=s)``) and collect the outcomes.
+
+    ``on_episode`` is called after each episode (the CLI's progress bar).
+    """
     out = []
     for seed in seeds:
         obs, _ = env.reset(seed=int(seed))
@@ -72,6 +77,8 @@ def run_episodes(env: Any, policy: Policy, seeds: Iterable[int]) -> list[Episode
             costs.append(float(info.get("cost", -reward)))
             done = terminated or truncated
         out.append(EpisodeOutcome(int(seed), total, n, diverged, float(np.mean(costs))))
+        if on_episode is not None:
+            on_episode()
     return out
 
 

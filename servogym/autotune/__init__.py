@@ -48,7 +48,9 @@ from servogym.autotune._session import (
     Session,
     TuneError,
     best_trial,
+    counts_toward_budget,
     default_storage_url,
+    open_storage,
     trial_seed,
 )
 from servogym.autotune._space import UNIT_PREFIX, SearchSpace, register_values
@@ -99,11 +101,13 @@ __all__ = [
     "VendorStepTuner",
     "astrom_hagglund",
     "best_trial",
+    "counts_toward_budget",
     "default_storage_url",
     "design_registers",
     "gain_map_for",
     "get_tuner",
     "identify_rigid_axis",
+    "open_storage",
     "read_param_file",
     "register_gain_map",
     "register_tuner",

@@ -33,7 +33,8 @@ def tune_command(
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of samplers and plant draws.")] = 0,
     workers: Annotated[
-        int | None, typer.Option("--workers", help="Evaluation threads [default: all cores].")
+        int | None,
+        typer.Option("--workers", help="Evaluation threads.", show_default="all cores"),
     ] = None,
     robust: Annotated[
         int,
@@ -53,7 +54,8 @@ def tune_command(
         float | None,
         typer.Option(
             "--max-following-error",
-            help="Constraint (counts) [default: 1 % of the longest move].",
+            help="Constraint (counts).",
+            show_default="1 % of the longest move",
         ),
     ] = None,
     max_saturation: Annotated[
@@ -77,7 +79,20 @@ def tune_command(
     ] = None,
     storage: Annotated[
         str | None,
-        typer.Option("--storage", help="Optuna RDB URL [default: sqlite:///OUT/study.db]."),
+        typer.Option(
+            "--storage",
+            help="Journal file path or Optuna RDB URL (sqlite:///..., postgresql://...).",
+            show_default="OUT/study.journal",
+        ),
+    ] = None,
+    study_name: Annotated[
+        str | None,
+        typer.Option(
+            "--study-name",
+            help="Study to create or join: several workers with the same --storage and "
+            "--study-name share one study and its budget.",
+            show_default="servogym-<OUT name>",
+        ),
     ] = None,
     resume: Annotated[
         bool, typer.Option("--resume", help="Continue the interrupted study of this run.")
@@ -92,7 +107,7 @@ def tune_command(
     ] = None,
     batch_size: Annotated[
         int | None,
-        typer.Option("--batch-size", help="Trials a sampler asks at once [default: 8]."),
+        typer.Option("--batch-size", help="Trials a sampler asks at once.", show_default="8"),
     ] = None,
     min_gain_margin: Annotated[
         float,
@@ -118,8 +133,13 @@ def tune_command(
         bool,
         typer.Option("--force", help="Write the hardware files even when the check fails."),
     ] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the run's summary.json for machines.")
+    ] = False,
 ) -> None:
     """Tune a chip's parameters on a simulated plant and write the tuned set with reports."""
+    import json
+
     from rich.console import Console
 
     from servogym._cli_common import check_count, check_number, fail
@@ -137,9 +157,14 @@ def tune_command(
     check_count("--seed", seed, low=0)
     check_number("--max-following-error", max_following_error, low=0, low_open=True)
     check_number("--max-saturation", max_saturation, low=0, high=1)
+    check_number("--min-gain-margin", min_gain_margin, low=0, high=60)
+    check_number("--min-phase-margin", min_phase_margin, low=0, high=90)
+    check_count("--check-candidates", check_candidates)
     if out.exists() and not out.is_dir():
         fail(f"--out {str(out)!r} is a file; give a folder for the run's outputs.")
-    previous = [n for n in (MANIFEST, PENDING, "study.db") if (out / n).exists()]
+    previous = [
+        n for n in (MANIFEST, PENDING, "study.db", "study.journal") if (out / n).exists()
+    ]
     if previous and not resume:
         fail(
             f"--out {str(out)!r} already holds a tune run ({', '.join(previous)}); pass "
@@ -177,12 +202,17 @@ def tune_command(
             check=check,
             check_candidates=check_candidates,
             force=force,
+            study_name=study_name,
         )
         problem = config.problem()  # validate everything before the progress bar
         if warm_start is not None:
             from servogym.autotune._job import read_param_file
 
             read_param_file(warm_start, problem.scenario.chip_model)
+        if storage is not None:
+            from servogym.autotune._session import open_storage
+
+            open_storage(storage)
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
         return
@@ -203,7 +233,7 @@ def tune_command(
         TextColumn("best cost {task.fields[best]}"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
-        console=console,
+        console=Console(stderr=True) if as_json else console,
     )
     task = progress.add_task("tune", total=budget, best="-")
 
@@ -237,9 +267,15 @@ def tune_command(
     except Exception as exc:  # storage drivers: SQLAlchemy and Optuna errors
         if type(exc).__module__.split(".")[0] not in ("sqlalchemy", "optuna", "sqlite3"):
             raise
-        where = storage or f"{out / 'study.db'}"
+        where = storage or str(out)
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         fail(f"--storage {where!r} cannot be used as an Optuna study: {first[:200]}")
+    report = summary.get("check")
+    failed = report is not None and not report["passed"] and summary["hardware_files_withheld"]
+    if as_json:
+        typer.echo(json.dumps(summary, indent=2, default=str))
+        if failed:
+            raise typer.Exit(code=1)
         return
     console.print(summary_heading(summary), highlight=False)
     console.print(summary_table(summary))
@@ -248,9 +284,15 @@ def tune_command(
             "[yellow]warning:[/yellow] no trial met the constraints; the best cost is shown. "
             "Raise the budget or relax --max-following-error / --max-saturation."
         )
-    report = summary.get("check")
     if report is not None:
         console.print(check_table(report))
+    if summary["n_trials"] < budget:
+        console.print(
+            f"[cyan]note:[/cyan] the {tuner} procedure finished after {summary['n_trials']} of "
+            f"{budget} evaluations: a classical tuner stops when its procedure is done, and "
+            "the rest of the budget is not used.",
+            highlight=False,
+        )
     for name in summary["files"].values():
         console.print(f"wrote {out / name}", highlight=False)
     console.print(f"study: {summary['storage']} (study {summary['study_name']!r})", highlight=False)

@@ -22,7 +22,7 @@ from servogym.autotune._session import (
     scored_trials,
 )
 from servogym.autotune._space import SearchSpace
-from servogym.autotune._tuners import get_tuner
+from servogym.autotune._tuners import OptunaTuner, get_tuner
 from servogym.chips._family import get_chip
 from servogym.sim._check import CheckLimits, CheckReport, check_params, write_bode
 from servogym.sim._scenario import Evaluator, MoveSpec, Scenario
@@ -70,6 +70,7 @@ def run_study(
     warm_start: Mapping[str, int] | None = None,
     progress: ProgressCallback | None = None,
     evaluator_factory: Callable[[Any], Any] = Evaluator,
+    load_if_exists: bool = False,
 ) -> StudyResult:
     """Tune ``problem`` with a registered tuner and return the best set.
 
@@ -77,9 +78,12 @@ def run_study(
         problem: What to tune.
         tuner: A name of :func:`servogym.autotune.tuner_names`.
         budget: Evaluations the study holds in the end (see docs/autotune.md).
-        storage: Optuna RDB URL (``sqlite:///path/study.db``); ``None``: in memory only.
+        storage: Journal file path or Optuna RDB URL (``sqlite:///path/study.db``,
+            ``postgresql://...``); ``None``: in memory only.
         study_name: Study name in that storage.
         resume: Continue an existing study of that name.
+        load_if_exists: Join the study of that name if it exists (another worker's), else
+            create it; the budget is the study's, shared by every worker.
         n_workers: Evaluation threads; default every core.
         batch_size: Trials per sampler batch (default 8; a resume keeps the stored one).
         warm_start: Register values evaluated first (a new study only).
@@ -103,6 +107,8 @@ def run_study(
             warm_start=warm_start,
             progress=progress,
             evaluator_factory=evaluator_factory,
+            load_if_exists=load_if_exists,
+            shared=isinstance(tuner_obj, OptunaTuner),
         )
         with session:
             if session.remaining > 0:
@@ -184,13 +190,14 @@ class TuneConfig:
         max_saturation: Constraint limit (fraction of ticks at the motor limit).
         multi_objective: Minimize cost and peak following error (a Pareto front).
         warm_start: A parameter file to evaluate first.
-        storage: Optuna RDB URL (default ``sqlite:///OUT/study.db``).
+        storage: Journal file or Optuna RDB URL (default ``OUT/study.journal``).
         resume: Continue the run folder's study.
         fix: Registers held at a value.
         search: Registers to search (default every tunable one).
         moves: Evaluation moves (default the plant's).
         batch_size: Trials per sampler batch.
-        study_name: Study name (default ``servogym-<folder name>``).
+        study_name: Study name (default ``servogym-<folder name>``); when given, the run
+            joins the study of that name if it exists (several workers, one study).
         min_gain_margin_db: Margin constraint during tuning and minimum of the check (dB).
         min_phase_margin_deg: The same for the phase margin (degrees).
         check: Check the result before writing it (``servogym.sim.check_params``).
@@ -306,6 +313,7 @@ def tune(
         batch_size=config.batch_size,
         warm_start=warm,
         progress=progress,
+        load_if_exists=config.study_name is not None,
     )
     report = None
     files: dict[str, bytes] = {}

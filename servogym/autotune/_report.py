@@ -15,7 +15,12 @@ import numpy as np
 from servogym import __version__
 from servogym._files import write_atomic, write_file_set
 from servogym.autotune._problem import TuneProblem
-from servogym.autotune._session import is_feasible, pareto_front, scored_trials
+from servogym.autotune._session import (
+    counts_toward_budget,
+    is_feasible,
+    pareto_front,
+    scored_trials,
+)
 from servogym.autotune._space import UNIT_PREFIX
 from servogym.chips._family import family_of, get_chip
 from servogym.sim._scenario import Evaluation, Evaluator
@@ -32,6 +37,11 @@ TABLE_METRICS = (
     ("chatter", "chatter (fraction/tick)"),
 )
 """Rows of the default-vs-tuned table: (key of :func:`evaluation_metrics`, label)."""
+
+
+def _n_counted(trials: list[Any]) -> int:
+    """Trials that used the budget (not a dead worker's re-queued or an over-budget one)."""
+    return sum(map(counts_toward_budget, trials))
 
 
 def export_names(family: Any, model: str | None = None) -> dict[str, str]:
@@ -276,7 +286,7 @@ def write_outputs(
     notes = {
         "tuner": result.tuner,
         "seed": problem.seed,
-        "n_trials": len(result.trials),
+        "n_trials": _n_counted(result.trials),
         "best_trial": result.best.number,
         "feasible": result.feasible,
         "cost": tuned_metrics["cost"],
@@ -321,7 +331,7 @@ def write_outputs(
         "tuner": result.tuner,
         "seed": problem.seed,
         "budget": getattr(config, "budget", len(result.trials)),
-        "n_trials": len(result.trials),
+        "n_trials": _n_counted(result.trials),
         "kinds": _count_kinds(result.trials),
         "best_trial": result.best.number,
         "feasible": result.feasible,

@@ -1,33 +1,46 @@
-"""A tuning session: the study, the budget, parallel evaluation and persistence.
+"""A tuning session: one Optuna study in a storage, shared by every worker that joins it.
 
-Two Optuna studies work together:
+The study lives in its storage and nowhere else, the way Optuna's distributed optimization
+works: every worker, a thread pool in one process or processes on many machines, asks and
+tells on the same study, and the storage numbers the trials. Several ``servogym tune
+--storage URL --study-name NAME`` processes therefore share one study:
 
-* the *working study* lives in memory. Samplers ask and tell there, so a sampler never
-  waits on a database;
-* the *stored study* (a SQLite file by default, any Optuna RDB URL when given) receives every
-  finished trial, complete with its parameters, values, constraints, user and system
-  attributes, by ``Study.add_trial`` as soon as it and every trial before it have finished.
-  It therefore always holds a prefix ``0 .. m`` of the working study's trials, with the
-  same numbers. This is the study ``optuna-dashboard`` opens and ``--resume`` continues.
+* **the budget is the study's**: a worker asks only while the trials that count (every
+  trial except those failed for a dead worker or over the budget, see
+  :func:`counts_toward_budget`) are fewer than the budget, and stops when that many are
+  finished; trials still running on other workers are waited for, so a study ends with
+  exactly ``budget`` counted trials, none evaluated twice;
+* **a killed worker loses nothing**: every running trial carries a heartbeat (Optuna's own
+  on an RDB storage, the same interface on a journal file, :class:`JournalFileStorage`);
+  a trial whose heartbeat stops for ``grace_period`` seconds is failed by the next worker
+  that looks (``optuna.storages.fail_stale_trials``) and queued again with the same
+  parameters (``RetryHeartbeatStaleTrialCallback``), and a worker that is interrupted
+  (Ctrl-C, an exception) fails and re-queues its own trials at once.
+
+Storages: a file path is an Optuna journal file (the default, ``OUT/study.journal``: one
+append per write, no database round trip), anything with ``://`` an Optuna RDB URL
+(``sqlite:///...``, ``postgresql://...``), ``None`` memory only.
 
 Determinism. Samplers ask in batches of ``batch_size`` trials, all of a batch before any of
-it is evaluated; a batch is evaluated in a thread pool (each thread owns its own
-:class:`~servogym.sim.Evaluator`, so no plant is shared) and told as its trials finish. The
-sampler is rebuilt before every ask with a seed derived from ``(seed, trial number)``. A
-trial's parameters are thus a function of the seed, its number and the trials of earlier
-batches only: the same seed gives the same study whatever the number of workers, and a
-resumed study continues exactly as the uninterrupted one would have (the batch that was
-running is asked again from the state saved at its start, its stored trials are checked
-against the re-asked ones and kept, the rest evaluated).
+it is told; each trial is evaluated as soon as it is asked (a thread pool; each thread owns
+its own :class:`~servogym.sim.Evaluator`) and told when the whole batch is asked. The
+sampler that asks trial ``n`` is built from a seed derived from ``(seed, n)``. With one
+worker process a trial's parameters are thus a function of the seed, its number and the
+trials of earlier batches only: the same seed gives the same study whatever the number of
+threads. Several processes on one study interleave their trials, so their study depends on
+timing (every trial is still asked by a seeded sampler; no two workers repeat one).
 """
 
 from __future__ import annotations
 
+import bisect
 import concurrent.futures as cf
 import contextlib
 import dataclasses
 import json
+import logging
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -39,11 +52,25 @@ from servogym.autotune._problem import Outcome, TuneProblem, aggregate
 from servogym.autotune._space import register_values
 from servogym.sim._scenario import Evaluator
 
+logger = logging.getLogger(__name__)
+
 DEFAULT_BATCH_SIZE = 8
 """Trials asked per batch: enough to keep 8 cores busy, few enough for TPE to learn."""
 
+HEARTBEAT_INTERVAL_S = 5
+"""Seconds between two heartbeats of a running trial."""
+
+GRACE_PERIOD_S = 20
+"""Seconds without a heartbeat after which a running trial counts as abandoned."""
+
+MAX_RETRY = 3
+"""Times an abandoned trial is queued again with the same parameters."""
+
+POLL_S = 0.25
+"""Seconds a worker waits before looking again at trials other workers are running."""
+
 CONFIG_KEY = "servogym:config"
-BATCH_KEY = "servogym:batch"
+HEARTBEAT_KEY = "servogym:heartbeat"
 
 KINDS = ("warm_start", "sample", "candidate", "experiment")
 """What a trial is: the warm-start set, a sampler's proposal, a classical tuner's candidate
@@ -69,28 +96,284 @@ def trial_seed(seed: int, number: int) -> int:
 
 
 def default_storage_url(out_dir: str | Path) -> str:
-    """``sqlite:///DIR/study.db``, the default storage of a run folder.
+    """``DIR/study.journal``, the default storage of a run folder (an Optuna journal file).
 
-    Built with SQLAlchemy's URL API, so a folder name with ``?``, ``%``, ``#`` or ``@`` is
-    quoted and names that folder (``--out 'q?x=1'`` stores into ``q?x=1/study.db``).
+    A run folder written by servogym 0.1 before studies were shared holds ``study.db``
+    instead; its SQLite URL is returned then, so ``--resume`` continues it. That URL is built
+    with SQLAlchemy's URL API, so a folder name with ``?``, ``%``, ``#`` or ``@`` is quoted
+    and names that folder.
     """
     from sqlalchemy.engine import URL
 
-    path = (Path(out_dir) / "study.db").resolve()
-    return URL.create("sqlite", database=str(path)).render_as_string(hide_password=False)
+    folder = Path(out_dir).resolve()
+    if (folder / "study.db").exists() and not (folder / "study.journal").exists():
+        db = str(folder / "study.db")
+        return URL.create("sqlite", database=db).render_as_string(hide_password=False)
+    return str(folder / "study.journal")
 
 
-def open_storage(url: str) -> Any:
-    """An Optuna RDB storage for ``url``.
+def counts_toward_budget(trial: Any) -> bool:
+    """Whether a trial uses the budget: every trial except a failed one without an ``error``
+    (a worker died or was interrupted: it is queued again; or it was asked over the budget)."""
+    if trial.state.name == "FAIL":
+        return "error" in trial.user_attrs
+    return True
 
-    A SQLite file is switched to write-ahead logging with ``synchronous=NORMAL``: a commit is
-    then durable against the process being killed (only an OS crash could lose the last
-    commits), and about 50 times faster than a synced commit.
+
+# ---------------------------------------------------------------------------- storages
+
+
+def _journal_storage_class() -> type:
+    from optuna.storages import JournalStorage
+    from optuna.storages._heartbeat import BaseHeartbeat
+
+    class _JournalFileStorage(JournalStorage, BaseHeartbeat):
+        """An Optuna journal storage with heartbeats (see :func:`open_storage`).
+
+        A heartbeat is a system attribute of the trial; a running trial that has none yet
+        beats from its start time, so asking a trial costs no extra write.
+        """
+
+        beats_from_start = True
+
+        def __init__(self, backend: Any, heartbeat_interval: int, grace_period: int,
+                     callback: Any) -> None:  # fmt: skip
+            super().__init__(backend)
+            self._heartbeat_interval = heartbeat_interval
+            self._grace_period = grace_period
+            self._stale_callback = callback
+
+        def record_heartbeat(self, trial_id: int) -> None:
+            self.set_trial_system_attr(trial_id, HEARTBEAT_KEY, time.time())
+
+        def _get_stale_trial_ids(self, study_id: int) -> list[int]:
+            from optuna.trial import TrialState
+
+            now = time.time()
+            stale = []
+            for t in self.get_all_trials(study_id, deepcopy=False, states=(TrialState.RUNNING,)):
+                beats = [t.system_attrs.get(HEARTBEAT_KEY)]
+                if t.datetime_start is not None:
+                    beats.append(t.datetime_start.timestamp())
+                beat = max((b for b in beats if b is not None), default=None)
+                if beat is not None and now - beat > self._grace_period:
+                    stale.append(t._trial_id)
+            return stale
+
+        def get_heartbeat_interval(self) -> int | None:
+            return self._heartbeat_interval
+
+        def get_heartbeat_stale_trial_callback(self) -> Any:
+            return self._stale_callback
+
+    return _JournalFileStorage
+
+
+def _journal_backend(path: Path) -> Any:
+    import fcntl
+    import os
+
+    from optuna.storages.journal import JournalFileBackend
+    from optuna.storages.journal._file import BaseJournalFileLock
+
+    class _FlockLock(BaseJournalFileLock):
+        # One flock(2) on a file kept open, instead of Optuna's symlink or O_EXCL lock files
+        # (a few file-system operations per write; flock works on local disks and NFS).
+        def __init__(self, lock_path: str) -> None:
+            self._fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+
+        def acquire(self) -> bool:
+            fcntl.flock(self._fd, fcntl.LOCK_EX)
+            return True
+
+        def release(self) -> None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+
+        def __del__(self) -> None:
+            with contextlib.suppress(OSError, AttributeError):
+                os.close(self._fd)
+
+    class _Backend(JournalFileBackend):
+        # Optuna's file backend syncs every write to disk and re-opens the file at every
+        # read and write. Here the file stays open: a write is one append under the lock;
+        # like SQLite's WAL mode with synchronous=NORMAL, it survives the process being
+        # killed (only an OS crash could lose the last lines). A read first checks the
+        # file's size, so a study with nothing new costs one fstat(2).
+        def __init__(self, file_path: str, lock_obj: Any) -> None:
+            super().__init__(file_path, lock_obj)
+            self._append_fd = os.open(file_path, os.O_WRONLY | os.O_APPEND)
+            self._read_file = open(file_path, "rb")  # noqa: SIM115  (kept open)
+
+        def __del__(self) -> None:
+            with contextlib.suppress(OSError, AttributeError):
+                os.close(self._append_fd)
+                self._read_file.close()
+
+        def append_logs(self, logs: list[dict[str, Any]]) -> None:
+            text = "\n".join(json.dumps(log, separators=(",", ":")) for log in logs) + "\n"
+            data = text.encode("utf-8")
+            self._lock.acquire()
+            try:
+                while data:  # a regular file takes it in one write; loop for safety
+                    data = data[os.write(self._append_fd, data) :]
+            finally:
+                self._lock.release()
+
+        def read_logs(self, log_number_from: int) -> Any:
+            f = self._read_file
+            size = os.fstat(f.fileno()).st_size
+            offsets = self._log_number_offset
+            start = offsets.get(log_number_from)
+            if start is not None and start == size:
+                return iter(())
+            return self._read_from(log_number_from, size)
+
+        def _read_from(self, log_number_from: int, size: int) -> Any:
+            # Optuna's JournalFileBackend.read_logs, on the open file.
+            f = self._read_file
+            offsets = self._log_number_offset
+            remaining = size
+            start_number = 0
+            f.seek(0)
+            if log_number_from in offsets:
+                f.seek(offsets[log_number_from])
+                start_number = log_number_from
+                remaining -= offsets[log_number_from]
+            last_error: Exception | None = None
+            for number, line in enumerate(f, start=start_number):
+                remaining -= len(line)
+                if remaining < 0:
+                    break
+                if last_error is not None:
+                    raise last_error
+                if not line.endswith(b"\n"):
+                    last_error = ValueError("Invalid log format.")
+                    continue
+                if number + 1 not in offsets:
+                    offsets[number + 1] = offsets[number] + len(line)
+                if number < log_number_from:
+                    continue
+                try:
+                    yield json.loads(line)
+                except json.JSONDecodeError as err:
+                    last_error = err
+                    del offsets[number + 1]
+
+    # Not Optuna's ".lock" name: optuna-dashboard opening the file uses a symlink lock there.
+    return _Backend(str(path), _FlockLock(str(path) + ".flock"))
+
+
+def _retry_callback() -> Any:
+    """Optuna's retry of a stale trial, queuing a copy without the old trial's constraints,
+    heartbeat and sampler state (only its parameters, user attributes and retry history)."""
+    import copy
+
+    try:
+        from optuna.storages import RetryHeartbeatStaleTrialCallback as Retry
+    except ImportError:  # Optuna < 4.9
+        from optuna.storages import RetryFailedTrialCallback as Retry
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        retry = Retry(max_retry=MAX_RETRY)
+
+    def callback(study: Any, trial: Any) -> None:
+        trial = copy.copy(trial)
+        keep = ("failed_trial", "retry_history")
+        trial._system_attrs = {k: v for k, v in trial.system_attrs.items() if k in keep}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            retry(study, trial)
+
+    return callback
+
+
+def open_storage(
+    url: str | None,
+    *,
+    heartbeat_interval: int | None = None,
+    grace_period: int | None = None,
+) -> Any:
+    """The Optuna storage for ``url``, with heartbeats, or a :class:`TuneError` in one line.
+
+    Args:
+        url: ``None`` (memory only); a file path (an Optuna journal file, created if
+            missing: the default, fastest on one machine, and shared by processes on one
+            machine or over NFS); or an RDB URL: ``sqlite:///path/study.db``,
+            ``postgresql://user:password@host/db`` (needs ``pip install 'servogym[postgres]'``),
+            ``mysql+pymysql://...``.
+        heartbeat_interval: Seconds between heartbeats of a running trial (default
+            :data:`HEARTBEAT_INTERVAL_S`).
+        grace_period: Seconds without a heartbeat after which a running trial is failed and
+            queued again (default :data:`GRACE_PERIOD_S`).
+
+    A SQLite file is switched to write-ahead logging with ``synchronous=NORMAL`` and waits
+    up to 60 s for a lock, so several processes can share it.
     """
     import optuna
 
-    storage = optuna.storages.RDBStorage(url)
-    if url.startswith("sqlite:"):
+    heartbeat_interval = heartbeat_interval or HEARTBEAT_INTERVAL_S
+    grace_period = grace_period or GRACE_PERIOD_S
+    if url is None:
+        return optuna.storages.InMemoryStorage()
+    if not isinstance(url, str):
+        return url  # a storage object already
+    if "://" not in url:
+        path = Path(url).expanduser()
+        if not path.parent.is_dir():
+            raise TuneError(
+                f"cannot open the study storage {url!r}: the folder {str(path.parent)!r} "
+                "does not exist."
+            )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # JournalStorage is experimental in some versions
+            return _journal_storage_class()(
+                _journal_backend(path), heartbeat_interval, grace_period, _retry_callback()
+            )
+    return _open_rdb(url, heartbeat_interval, grace_period)
+
+
+def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:
+    import optuna
+
+    shown = _redact(url)
+    scheme, _, rest = url.partition("://")
+    if scheme in ("postgresql", "postgres"):
+        # Whichever driver is installed (SQLAlchemy 2.0 defaults to psycopg2, 2.1 to psycopg).
+        import importlib.util
+
+        drivers = [d for d in ("psycopg", "psycopg2") if importlib.util.find_spec(d)]
+        if not drivers:
+            raise TuneError(
+                f"the storage {shown!r} needs a PostgreSQL driver: "
+                "pip install 'servogym[postgres]'."
+            )
+        url = f"postgresql+{drivers[0]}://{rest}"
+    kwargs: dict[str, Any] = {}
+    if scheme == "sqlite":
+        kwargs["connect_args"] = {"timeout": 60}
+    for attempt in range(8):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                storage = optuna.storages.RDBStorage(
+                    url,
+                    engine_kwargs=kwargs,
+                    heartbeat_interval=heartbeat_interval,
+                    grace_period=grace_period,
+                    **{_rdb_callback_kwarg(): _retry_callback()},
+                )
+            break
+        except ImportError as exc:
+            raise TuneError(
+                f"cannot open the study storage {shown!r}: its database driver is "
+                f"missing ({exc}); for postgresql:// pip install 'servogym[postgres]'."
+            ) from None
+        except Exception as exc:  # SQLAlchemy's errors: bad URL, unreachable server, races
+            if _is_race(exc) and attempt < 7:
+                time.sleep(0.1 * (attempt + 1))  # another process is creating the schema
+                continue
+            raise TuneError(f"cannot open the study storage {shown!r}: {_one_line(exc)}") from None
+    if scheme == "sqlite":
         from sqlalchemy import event
 
         def _pragmas(dbapi_connection: Any, _record: Any) -> None:
@@ -104,43 +387,121 @@ def open_storage(url: str) -> Any:
     return storage
 
 
-def _study_system_attrs(study: Any) -> dict[str, Any]:
-    # Optuna 5 has no public accessor; samplers (QMCSampler's sample counter) use these.
-    return dict(study._storage.get_study_system_attrs(study._study_id))
+def _rdb_callback_kwarg() -> str:
+    import inspect
+
+    import optuna
+
+    names = inspect.signature(optuna.storages.RDBStorage).parameters
+    return (
+        "heartbeat_stale_trial_callback"
+        if "heartbeat_stale_trial_callback" in names
+        else "failed_trial_callback"
+    )
 
 
-def _set_study_system_attrs(study: Any, attrs: Mapping[str, Any]) -> None:
-    for key, value in attrs.items():
-        study._storage.set_study_system_attr(study._study_id, key, value)
+def _is_race(exc: Exception) -> bool:
+    text = str(exc).lower()
+    return any(
+        key in text
+        for key in ("already exists", "unique constraint", "duplicate key", "database is locked")
+    )
+
+
+def _one_line(exc: BaseException | None) -> str:
+    text = str(getattr(exc, "orig", None) or exc).strip()
+    line = text.splitlines()[0] if text else type(exc).__name__
+    return line.split(" (Background on this error")[0].rstrip(".") + "."
+
+
+def _redact(url: str) -> str:
+    """The URL without its password."""
+    head, sep, rest = url.partition("://")
+    if sep and "@" in rest:
+        cred, at, host = rest.rpartition("@")
+        user = cred.split(":", 1)[0]
+        return f"{head}://{user}{':***' if ':' in cred else ''}{at}{host}"
+    return url
+
+
+def per_trial_sampler(make_sampler: Callable[[int], Any], seed: int) -> Any:
+    """A sampler that asks trial ``n`` with ``make_sampler(trial_seed(seed, n))``.
+
+    The trial's number is known only once the storage has created it, so the inner sampler
+    is built in ``before_trial``; every other call goes to it.
+    """
+    import optuna
+    from optuna.search_space import IntersectionSearchSpace
+
+    class _PerTrialSeeded(optuna.samplers.BaseSampler):
+        def __init__(self) -> None:
+            self._inner: Any = None
+            self._spaces: dict[Any, Any] = {}
+
+        def before_trial(self, study: Any, trial: Any) -> None:
+            self._inner = make_sampler(trial_seed(seed, trial.number))
+            # The search space of the study, computed incrementally once for all trials
+            # (TPE's own is per sampler instance, so it would be recomputed from scratch).
+            space = getattr(self._inner, "_search_space", None)
+            if isinstance(space, IntersectionSearchSpace):
+                key = (type(self._inner), space._include_pruned)
+                self._inner._search_space = self._spaces.setdefault(key, space)
+            self._inner.before_trial(study, trial)
+
+        def infer_relative_search_space(self, study: Any, trial: Any) -> Any:
+            return self._inner.infer_relative_search_space(study, trial)
+
+        def sample_relative(self, study: Any, trial: Any, search_space: Any) -> Any:
+            return self._inner.sample_relative(study, trial, search_space)
+
+        def sample_independent(self, study: Any, trial: Any, name: str, dist: Any) -> Any:
+            return self._inner.sample_independent(study, trial, name, dist)
+
+        def after_trial(self, study: Any, trial: Any, state: Any, values: Any) -> None:
+            if self._inner is not None:
+                self._inner.after_trial(study, trial, state, values)
+
+    return _PerTrialSeeded()
 
 
 @dataclasses.dataclass
 class _Pending:
-    trial: Any  # optuna.Trial of the working study
+    trial: Any  # optuna.Trial
     values: dict[str, int]
-    params: Any
+    kind: str
+    futures: list[Any]
 
 
 class Session:
-    """One tuning run of one problem: budget, working and stored study, thread pool.
+    """One worker's part of a tuning study: budget, stored study, heartbeats, thread pool.
 
     Args:
         problem: What is tuned.
-        budget: Evaluations (trials) the study may hold in the end, warm start and
-            experiments included.
-        storage: An Optuna RDB URL (``sqlite:///run/study.db``, ``postgresql://...``);
-            ``None`` keeps the study in memory only (no file, nothing to resume).
+        budget: Evaluations (trials) the study holds in the end, warm start and experiments
+            included, whatever the number of workers sharing it.
+        storage: A journal file path, an Optuna RDB URL (``sqlite:///run/study.db``,
+            ``postgresql://...``) or a storage object; ``None`` keeps the study in memory
+            only (nothing to resume or share).
         study_name: Name of the study in that storage.
-        tuner_name: Stored with the study; a resume must use the same tuner.
-        resume: Continue the study of that name; without it, the study must not exist.
-        n_workers: Threads that evaluate in parallel.
-        batch_size: Trials a sampler asks before any is evaluated; default
+        tuner_name: Stored with the study; every worker and a resume must use the same.
+        resume: Continue the study of that name; it must exist.
+        load_if_exists: Join the study of that name if it exists, else create it (how
+            several workers share one study); without this or ``resume`` the study must
+            not exist.
+        n_workers: Threads that evaluate in parallel in this process.
+        batch_size: Trials a sampler asks before any is told; default
             :data:`DEFAULT_BATCH_SIZE`. Part of the study's identity: a resume uses the
             stored one.
         warm_start: Register values evaluated first (trial 0) when the study is new.
         progress: Called after every finished trial.
         evaluator_factory: Builds one evaluator per thread (default
             :class:`servogym.sim.Evaluator`).
+        heartbeat_interval: Seconds between heartbeats of a running trial (default
+            :data:`HEARTBEAT_INTERVAL_S`).
+        grace_period: Seconds without a heartbeat after which another worker fails a
+            running trial and queues it again (default :data:`GRACE_PERIOD_S`).
+        shared: Whether other processes may work on the study at the same time (the
+            classical tuners, sequential procedures, cannot).
     """
 
     def __init__(
@@ -148,18 +509,20 @@ class Session:
         problem: TuneProblem,
         *,
         budget: int,
-        storage: str | None,
+        storage: Any,
         study_name: str,
         tuner_name: str,
         resume: bool = False,
+        load_if_exists: bool = False,
         n_workers: int = 1,
         batch_size: int | None = None,
         warm_start: Mapping[str, int] | None = None,
         progress: ProgressCallback | None = None,
         evaluator_factory: Callable[[Any], Any] = Evaluator,
+        heartbeat_interval: int | None = None,
+        grace_period: int | None = None,
+        shared: bool = True,
     ) -> None:
-        import optuna
-
         batch_size_given = batch_size is not None
         batch_size = DEFAULT_BATCH_SIZE if batch_size is None else batch_size
         for name, value, low in (("budget", budget, 1), ("n_workers", n_workers, 1),
@@ -172,9 +535,10 @@ class Session:
         self.n_workers = n_workers
         self.progress = progress
         self.evaluator_factory = evaluator_factory
-        self.storage_url = storage
+        self.storage_url = storage if isinstance(storage, str) or storage is None else None
         self.study_name = study_name
         self.directions = ["minimize"] * len(problem.objectives)
+        self.shared = shared
 
         config = json.loads(
             json.dumps(
@@ -186,57 +550,40 @@ class Session:
                 }
             )
         )
-        self._storage = (
-            open_storage(storage) if storage is not None else optuna.storages.InMemoryStorage()
+        self._storage = open_storage(
+            storage, heartbeat_interval=heartbeat_interval, grace_period=grace_period
         )
-        exists = study_name in {s.study_name for s in optuna.get_all_study_summaries(self._storage)}
-        if exists and not resume:
-            raise TuneError(
-                f"a study named {study_name!r} already exists in {storage}; pass --resume "
-                "(resume=True) to continue it, or choose another --out or --storage."
-            )
-        if resume and not exists:
-            raise TuneError(
-                f"nothing to resume: there is no study named {study_name!r} in {storage}. "
-                "Run without --resume to start it."
-            )
-        if exists:
-            self.stored = optuna.load_study(study_name=study_name, storage=self._storage)
-            old = self.stored.user_attrs.get(CONFIG_KEY) or {}
-            # A resume repeats the problem and the tuner; batch size and warm start are the
-            # stored ones unless given again (then they must agree).
+        self.study, created = self._open_study(config, resume, load_if_exists)
+        if not created:
+            old = self._stored_config()
+            # A resume or a joining worker repeats the problem and the tuner; batch size and
+            # warm start are the stored ones unless given again (then they must agree).
             if warm_start is None:
                 config["warm_start"] = old.get("warm_start")
             if not batch_size_given:
                 config["batch_size"] = old.get("batch_size", config["batch_size"])
             if old != config:
                 raise TuneError(
-                    f"the study {study_name!r} in {storage} was started with other settings; "
-                    "a resume must repeat them (only the budget and the number of workers may "
-                    f"change). Differences: {_diff(old, config)}."
+                    f"the study {study_name!r} in {self._where()} was started with other "
+                    "settings; a resume or another worker must repeat them (only the budget "
+                    f"and the number of workers may change). Differences: {_diff(old, config)}."
                 )
-        else:
-            self.stored = optuna.create_study(
-                storage=self._storage, study_name=study_name, directions=self.directions
-            )
-            self.stored.set_user_attr(CONFIG_KEY, config)
         self.batch_size = int(config["batch_size"])
         self.warm_start = dict(config["warm_start"]) if config["warm_start"] else None
 
-        stored_trials = self.stored.get_trials(deepcopy=False)
-        if any(t.state.name in ("RUNNING", "WAITING") for t in stored_trials):
+        trials = self.study.get_trials(deepcopy=False)
+        counted = [t for t in trials if counts_toward_budget(t)]
+        if len(counted) > budget:
             raise TuneError(
-                f"the study {study_name!r} holds unfinished trials, so it was not written by "
-                "servogym tune (which stores finished trials only); continue it with Optuna."
+                f"the study {study_name!r} already holds {len(counted)} trials, more "
+                f"than budget={budget}; pass a budget >= {len(counted)}."
             )
-        if len(stored_trials) > budget:
+        if not shared and not created and not resume:
             raise TuneError(
-                f"the study {study_name!r} already holds {len(stored_trials)} trials, more "
-                f"than budget={budget}; pass a budget >= {len(stored_trials)}."
+                f"the {tuner_name!r} tuner is a sequential procedure and cannot share the "
+                f"study {study_name!r} with other workers; continue it in one process with "
+                "--resume."
             )
-        self.work = optuna.create_study(directions=self.directions)
-        self._n_stored = len(stored_trials)
-        self._resume_batch = self._rebuild(stored_trials)
 
         self._plants = problem.plant_instances()
         self._local = threading.local()
@@ -244,73 +591,198 @@ class Session:
         self._main_evaluator = evaluator_factory(problem.scenario)
         self._main_evaluator.plant.set_params(problem.nominal_plant())  # experiments' plant
         self.fe_limit = problem.following_error_limit(self._main_evaluator)
-        self._replay = [t for t in stored_trials if t.user_attrs.get("kind") != "warm_start"]
+        self._replay = [t for t in trials if t.state.is_finished() and counts_toward_budget(t)
+                        and t.user_attrs.get("kind") != "warm_start"]  # fmt: skip
         self._replay_pos = 0
         self._best: float | None = None
-        for t in self.work.get_trials(deepcopy=False):
+        for t in trials:
             self._note_best(t)
+        self._n_finished = sum(t.state.is_finished() for t in counted)
+        self._n_counted = len(counted)
+        self._running: dict[int, Any] = {}
+        self._running_lock = threading.Lock()
+        self._heartbeat_stop = threading.Event()
+        self._heartbeat_thread: threading.Thread | None = None
+        self._beat_at_ask = False
+        self._uncounted: list[int] = []
+        self._tell_time_s = 0.0
+        self._ask_time_s = 0.0
 
-    # ---------------------------------------------------------------- study bookkeeping
+    # ---------------------------------------------------------------- the study
 
-    def _rebuild(self, stored: Sequence[Any]) -> dict[str, Any] | None:
-        """Fill the working study from the stored one; return the batch to re-ask, if any."""
-        batch = self.stored.user_attrs.get(BATCH_KEY)
-        n = len(stored)
-        if batch is not None and batch["start"] <= n < batch["end"]:
-            # Interrupted inside a batch: keep the trials before it, ask the batch again from
-            # the state saved at its start.
-            self.work.add_trials(stored[: batch["start"]])
-            _set_study_system_attrs(self.work, batch["before"])
-            return {
-                "start": batch["start"],
-                "end": batch["end"],
-                "stored": stored[batch["start"] :],
-            }
-        self.work.add_trials(stored)
-        if batch is not None:
-            # Study-level sampler state after the last batch's asks (QMCSampler's counter).
-            _set_study_system_attrs(self.work, batch.get("after", {}))
-        return None
+    def _where(self) -> str:
+        return _redact(self.storage_url) if self.storage_url else "memory"
+
+    def _open_study(
+        self, config: Mapping[str, Any], resume: bool, load_if_exists: bool
+    ) -> tuple[Any, bool]:
+        import optuna
+
+        name = self.study_name
+        try:
+            exists = name in {s.study_name for s in optuna.get_all_study_summaries(self._storage)}
+        except Exception as exc:  # SQLAlchemy's errors when the database goes away
+            raise TuneError(f"cannot read the study storage {self._where()!r}: "
+                            f"{_one_line(exc)}") from None  # fmt: skip
+        if exists and not (resume or load_if_exists):
+            raise TuneError(
+                f"a study named {name!r} already exists in {self._where()}; pass --resume "
+                "(resume=True) to continue it, --study-name to join it as another worker, or "
+                "choose another --out or --storage."
+            )
+        if resume and not exists:
+            raise TuneError(
+                f"nothing to resume: there is no study named {name!r} in {self._where()}. "
+                "Run without --resume to start it."
+            )
+        if not exists:
+            try:
+                study = optuna.create_study(
+                    storage=self._storage, study_name=name, directions=self.directions
+                )
+            except optuna.exceptions.DuplicatedStudyError:
+                if not load_if_exists:
+                    raise TuneError(
+                        f"a study named {name!r} was just created in {self._where()} by "
+                        "another process; pass --study-name to join it."
+                    ) from None
+            else:
+                if config["warm_start"]:
+                    values = dict(config["warm_start"])
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        study.enqueue_trial(
+                            self.problem.space.to_unit(values),
+                            user_attrs={
+                                "kind": "warm_start",
+                                "registers": values,
+                                "note": "warm start",
+                            },
+                        )
+                study.set_user_attr(CONFIG_KEY, config)  # last: joiners wait for it
+                return study, True
+        return optuna.load_study(study_name=name, storage=self._storage), False
+
+    def _stored_config(self) -> dict[str, Any]:
+        deadline = time.monotonic() + 30
+        while True:
+            old = self.study.user_attrs.get(CONFIG_KEY)
+            if old is not None:
+                return old
+            if time.monotonic() > deadline:
+                raise TuneError(
+                    f"the study {self.study_name!r} in {self._where()} has no servogym "
+                    "configuration, so servogym tune did not create it; choose another "
+                    "--study-name."
+                )
+            time.sleep(POLL_S)  # its creator is about to store it
 
     @property
     def n_done(self) -> int:
-        """Trials in the working study (finished or being evaluated)."""
-        return len(self.work.get_trials(deepcopy=False))
+        """Finished trials that count toward the budget (this worker's view)."""
+        return self._n_finished
 
     @property
     def remaining(self) -> int:
-        """Evaluations left in the budget."""
-        return self.budget - self.n_done
+        """Evaluations left in the budget (trials neither running nor finished)."""
+        return self.budget - self._n_counted
 
-    def _persist(self) -> None:
-        """Store the finished trials that follow the stored ones, in trial order."""
-        trials = self.work.get_trials(deepcopy=False)
-        while self._n_stored < len(trials) and trials[self._n_stored].state.is_finished():
-            self.stored.add_trial(trials[self._n_stored])
-            self._n_stored += 1
+    def _refresh(self) -> list[Any]:
+        """Fail abandoned trials, re-count the study; return its counted trials."""
+        import optuna
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            before = len(self._uncounted)
+            optuna.storages.fail_stale_trials(self.study)
+        trials = self.study.get_trials(deepcopy=False)
+        counted = [t for t in trials if counts_toward_budget(t)]
+        self._uncounted = sorted(t.number for t in trials if not counts_toward_budget(t))
+        if len(self._uncounted) > before and before:
+            logger.info(
+                "%d abandoned trial(s) failed and queued again", len(self._uncounted) - before
+            )
+        self._n_counted = len(counted)
+        self._n_finished = sum(t.state.is_finished() for t in counted)
+        for t in counted:
+            self._note_best(t)
+        return counted
 
     def _note_best(self, t: Any) -> None:
         if t.state.name != "COMPLETE" or t.user_attrs.get("kind") == "experiment":
             return
-        feasible = all(v <= 0 for v in t.constraints.values())
-        value = t.values[0]
+        self._note(t.values[0], all(v <= 0 for v in t.constraints.values()))
+
+    def _note(self, value: float, feasible: bool) -> None:
         if feasible and (self._best is None or value < self._best):
             self._best = value
 
     def _report(self) -> None:
         if self.progress is not None:
-            self.progress(self.n_done, self.budget, self._best)
+            self.progress(min(self.n_done, self.budget), self.budget, self._best)
+
+    # ---------------------------------------------------------------- heartbeats
+
+    def _heartbeats_on(self) -> bool:
+        from optuna.storages._heartbeat import is_heartbeat_enabled
+
+        return is_heartbeat_enabled(self.study._storage)
+
+    def _beat(self, trial_ids: Sequence[int]) -> None:
+        storage = self.study._storage
+        for tid in trial_ids:
+            with contextlib.suppress(Exception):  # a trial finished meanwhile
+                storage.record_heartbeat(tid)
+
+    def _heartbeat_loop(self, interval: float) -> None:
+        while not self._heartbeat_stop.wait(interval):
+            with self._running_lock:
+                ids = list(self._running)
+            self._beat(ids)
+
+    def _abandon_running(self) -> None:
+        """Fail this worker's running trials and queue them again (an interrupted run)."""
+        import optuna
+
+        with self._running_lock:
+            ids = list(self._running)
+            self._running.clear()
+        storage = self.study._storage
+        retry = _retry_callback()
+        for tid in ids:
+            try:
+                if storage.set_trial_state_values(tid, state=optuna.trial.TrialState.FAIL):
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        retry(self.study, storage.get_trial(tid))
+            except Exception:
+                logger.debug("could not re-queue trial %s", tid, exc_info=True)
 
     # ---------------------------------------------------------------- evaluation
 
     def __enter__(self) -> Session:
         self._pool = cf.ThreadPoolExecutor(self.n_workers, thread_name_prefix="servogym-eval")
+        if self._heartbeats_on():
+            self._beat_at_ask = not getattr(self.study._storage, "beats_from_start", False)
+            interval = self.study._storage.get_heartbeat_interval()
+            self._heartbeat_stop.clear()
+            self._heartbeat_thread = threading.Thread(
+                target=self._heartbeat_loop, args=(interval,), daemon=True,
+                name="servogym-heartbeat",
+            )  # fmt: skip
+            self._heartbeat_thread.start()
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, exc_type: Any, *exc: Any) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+        if exc_type is not None:
+            self._abandon_running()
+        if self._heartbeat_thread is not None:
+            self._heartbeat_stop.set()
+            self._heartbeat_thread.join()
+            self._heartbeat_thread = None
 
     def _evaluate_one(self, params: Any, k: int) -> Any:
         state = self._local.__dict__
@@ -322,6 +794,29 @@ class Session:
         state["plant"] = k
         return evaluation
 
+    def _submit(self, params: Any) -> list[Any]:
+        if self._pool is None:
+            raise RuntimeError("use the Session as a context manager: with Session(...) as s")
+        return [self._pool.submit(self._evaluate_one, params, k) for k in range(len(self._plants))]
+
+    def _collect(
+        self, items: Sequence[tuple[Mapping[str, int], list[Any]]]
+    ) -> Iterator[tuple[int, Outcome]]:
+        """Yield ``(index, outcome)`` as the submitted evaluations of each item finish."""
+        owner = {fut: (i, k) for i, (_, futs) in enumerate(items) for k, fut in enumerate(futs)}
+        results: dict[int, dict[int, Any]] = {}
+        k_all = len(self._plants)
+        try:
+            for fut in cf.as_completed(owner):
+                i, k = owner[fut]
+                results.setdefault(i, {})[k] = fut.result()
+                if len(results[i]) == k_all:
+                    evals = [results[i][j] for j in range(k_all)]
+                    yield i, aggregate(items[i][0], evals, self.problem.robust_mode)
+        finally:
+            for fut in owner:
+                fut.cancel()
+
     def evaluate_sets(
         self, sets: Sequence[tuple[Mapping[str, int], Any]]
     ) -> Iterator[tuple[int, Outcome]]:
@@ -329,28 +824,28 @@ class Session:
 
         Yields ``(index, outcome)`` as each set finishes (not necessarily in order).
         """
-        if self._pool is None:
-            raise RuntimeError("use the Session as a context manager: with Session(...) as s")
-        k_all = len(self._plants)
-        futures = {
-            self._pool.submit(self._evaluate_one, params, k): (i, k)
-            for i, (_, params) in enumerate(sets)
-            for k in range(k_all)
-        }
-        results: dict[int, dict[int, Any]] = {}
-        try:
-            for fut in cf.as_completed(futures):
-                i, k = futures[fut]
-                results.setdefault(i, {})[k] = fut.result()
-                if len(results[i]) == k_all:
-                    evals = [results[i][j] for j in range(k_all)]
-                    yield i, aggregate(sets[i][0], evals, self.problem.robust_mode)
-        finally:
-            for fut in futures:
-                fut.cancel()
+        items = [(values, self._submit(params)) for values, params in sets]
+        yield from self._collect(items)
 
     def _finish(self, trial: Any, outcome: Outcome, kind: str, extra: Mapping[str, Any]) -> None:
-        """Attach an outcome to a running trial of the working study and tell it."""
+        """Attach an outcome to a running trial and tell it."""
+        import optuna
+
+        try:
+            self._tell(trial, outcome, kind, extra)
+        except optuna.exceptions.UpdateFinishedTrialError:
+            # Another worker found no heartbeat for it and failed it; its retry counts.
+            logger.warning(
+                "trial %d was failed as abandoned by another worker (no heartbeat for %s s); "
+                "its queued copy is evaluated instead",
+                trial.number,
+                self.study._storage.get_heartbeat_interval() if self._heartbeats_on() else "?",
+            )
+            with self._running_lock:
+                self._running.pop(trial._trial_id, None)
+
+    def _tell(self, trial: Any, outcome: Outcome, kind: str, extra: Mapping[str, Any]) -> None:
+        t0 = time.thread_time()
         trial.set_user_attr("kind", kind)
         trial.set_user_attr("registers", outcome.values)
         attrs = outcome.to_attrs()
@@ -358,98 +853,129 @@ class Session:
         trial.set_user_attr("outcome", attrs)
         for key, value in extra.items():
             trial.set_user_attr(key, value)
+        feasible = True
         if self.problem.constraints.enabled:
             for name, value in self.problem.constraint_values(outcome, self.fe_limit).items():
                 trial.set_constraint(name, value)
+                feasible = feasible and value <= 0
+        objectives = self.problem.objective_values(outcome)
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=".*CmaEsSampler will not use them.*")
-            self.work.tell(trial, self.problem.objective_values(outcome))
+            self.study.tell(trial, objectives)
+        if kind != "experiment":
+            self._note(float(objectives[0]), feasible)
+        with self._running_lock:
+            self._running.pop(trial._trial_id, None)
+        self._n_finished += 1
+        self._tell_time_s += time.thread_time() - t0
 
     # ---------------------------------------------------------------- sampler tuners
 
     def run_sampler(self, make_sampler: Callable[[int], Any]) -> None:
-        """Ask, evaluate and tell in batches until the budget is used.
+        """Ask, evaluate and tell in batches until the study's budget is used.
 
         Args:
-            make_sampler: Builds the sampler from a seed (called before every ask).
+            make_sampler: Builds the sampler from a seed (called for every trial, with the
+                seed of :func:`trial_seed` for the trial's number).
         """
+        self.study.sampler = per_trial_sampler(make_sampler, self.problem.seed)
         dists = self.problem.space.distributions()
-        if self._resume_batch is not None:
-            self._run_batch(self._resume_batch["start"], self._resume_batch["end"],
-                            make_sampler, dists, self._resume_batch["stored"])  # fmt: skip
-            self._resume_batch = None
-        while self.remaining > 0:
-            start = self.n_done
-            end = min(start + self.batch_size, self.budget)
-            self._run_batch(start, end, make_sampler, dists, ())
+        waited = False
+        while True:
+            counted = self._refresh()
+            self._report()
+            if self._n_finished >= self.budget:
+                return
+            waiting = sum(t.state.name == "WAITING" for t in counted)
+            n = min(self.batch_size, self.budget - len(counted) + waiting)
+            if n <= 0:
+                if not waited:
+                    logger.info(
+                        "waiting for %d trial(s) running on other workers",
+                        len(counted) - self._n_finished,
+                    )
+                    waited = True
+                time.sleep(POLL_S)  # the rest of the budget runs on other workers
+                continue
+            self._run_batch(n, dists, counted)
 
-    def _run_batch(
-        self,
-        start: int,
-        end: int,
-        make_sampler: Callable[[int], Any],
-        dists: Mapping[str, Any],
-        stored: Sequence[Any],
-    ) -> None:
+    def evaluate_warm_start(self) -> None:
+        """Evaluate the queued warm-start set (trial 0 of a new study) on its own."""
+        waiting = [t for t in self.study.get_trials(deepcopy=False) if t.state.name == "WAITING"]
+        if not waiting or waiting[0].user_attrs.get("kind") != "warm_start":
+            return
         import optuna
 
-        batch = {"start": start, "end": end, "before": _study_system_attrs(self.work)}
-        self.stored.set_user_attr(BATCH_KEY, batch)
+        if not isinstance(self.study.sampler, optuna.samplers.RandomSampler):
+            self.study.sampler = optuna.samplers.RandomSampler(seed=self.problem.seed)
+        self._n_counted = sum(map(counts_toward_budget, self.study.get_trials(deepcopy=False)))
+        self._run_batch(1, self.problem.space.distributions(), None)
+
+    def _run_batch(self, n: int, dists: Mapping[str, Any], counted: Sequence[Any] | None) -> None:
+        """Ask ``n`` trials, evaluating each as soon as it is asked; then tell them."""
+        import optuna
+
         pending: list[_Pending] = []
+        t0 = time.thread_time()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", category=Warning)
-            for number in range(start, end):
-                self.work.sampler = make_sampler(trial_seed(self.problem.seed, number))
-                trial = self.work.ask(dict(dists))
-                if trial.number != number:
-                    raise RuntimeError(f"trial numbers out of step: {trial.number} != {number}")
-                trial.set_user_attr("batch", [start, end])
-                values = self.problem.space.values_from_unit(trial.params)
+            for _ in range(n):
+                trial = self.study.ask(dict(dists))
+                with self._running_lock:
+                    self._running[trial._trial_id] = trial
+                if self._beat_at_ask:
+                    self._beat([trial._trial_id])
+                frozen = getattr(trial, "_cached_frozen_trial", None) or (
+                    self.study._storage.get_trial(trial._trial_id)
+                )
+                frozen_attrs = frozen.system_attrs
+                kind = trial.user_attrs.get("kind", "sample")
+                queued = kind == "warm_start" or "failed_trial" in frozen_attrs
+                if not queued and counted is not None:
+                    # Within the budget? Trial numbers are dense and unique in a storage, so
+                    # the trials before this one that count are its number minus those that
+                    # do not (failed ones never count again: a conservative bound).
+                    rank = trial.number - bisect.bisect_left(self._uncounted, trial.number)
+                    if rank >= self.budget:
+                        trial.set_user_attr("over_budget", True)
+                        trial.set_user_attr("note", "asked when other workers had taken the "
+                                            "whole budget; not evaluated")  # fmt: skip
+                        self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
+                        with self._running_lock:
+                            self._running.pop(trial._trial_id, None)
+                        break
+                if kind == "warm_start":
+                    values = {k: int(v) for k, v in trial.user_attrs["registers"].items()}
+                else:
+                    values = self.problem.space.values_from_unit(trial.params)
                 try:
                     params = self.problem.space.make_params(values)
                     values = register_values(params)
                 except ValueError as exc:  # a family's cross-register rule
-                    trial.set_user_attr("kind", "sample")
+                    trial.set_user_attr("kind", kind)
                     trial.set_user_attr("registers", values)
                     trial.set_user_attr("error", str(exc))
-                    self.work.tell(trial, state=optuna.trial.TrialState.FAIL)
+                    self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
+                    with self._running_lock:
+                        self._running.pop(trial._trial_id, None)
+                    self._n_finished += 1
                     continue
-                pending.append(_Pending(trial, values, params))
-        self.stored.set_user_attr(BATCH_KEY, {**batch, "after": _study_system_attrs(self.work)})
-        # Trials of this batch already stored before an interruption: keep their results.
-        done = {t.number: t for t in stored}
-        todo = []
-        for p in pending:
-            old = done.get(p.trial.number)
-            if old is None:
-                todo.append(p)
-                continue
-            if old.params != p.trial.params:
-                raise TuneError(
-                    f"resuming re-asked trial {p.trial.number} with other parameters than the "
-                    "stored one (was the study written by another servogym or Optuna "
-                    "version?); start a new study."
-                )
-            self._finish(p.trial, Outcome.from_attrs(
-                {**old.user_attrs["outcome"], "values": old.user_attrs["registers"]}),
-                "sample", {})  # fmt: skip
-        self._persist()
-        self._report()
-        for i, outcome in self.evaluate_sets([(p.values, p.params) for p in todo]):
-            p = todo[i]
-            self._finish(p.trial, outcome, "sample", {})
-            self._note_best(self.work.get_trials(deepcopy=False)[p.trial.number])
-            self._persist()
+                pending.append(_Pending(trial, values, kind, self._submit(params)))
+        self._ask_time_s += time.thread_time() - t0
+        for i, outcome in self._collect([(p.values, p.futures) for p in pending]):
+            p = pending[i]
+            self._finish(p.trial, outcome, p.kind, {})
             self._report()
-        self._persist()
 
     # ---------------------------------------------------------------- classical tuners
 
     def _add(self, trial: Any) -> None:
-        self.work.add_trial(trial)
-        t = self.work.get_trials(deepcopy=False)[-1]
-        self._note_best(t)
-        self._persist()
+        t0 = time.thread_time()
+        self.study.add_trial(trial)
+        self._tell_time_s += time.thread_time() - t0
+        self._n_counted += 1
+        self._n_finished += 1
+        self._note_best(trial)
         self._report()
 
     def _next_replay(self, kind: str, values: Mapping[str, int]) -> Any | None:
@@ -491,15 +1017,6 @@ class Session:
             user_attrs=user,
             constraints=constraints,
         )
-
-    def evaluate_warm_start(self) -> None:
-        """Evaluate the warm-start set as trial 0 of a new study (no-op otherwise)."""
-        if self.warm_start is None or self.n_done > 0:
-            return
-        values = dict(self.warm_start)
-        params = self.problem.space.make_params(values)
-        ((_, outcome),) = self.evaluate_sets([(values, params)])
-        self._add(self._frozen("warm_start", values, outcome, {"note": "warm start"}))
 
     def candidates(self, sets: Sequence[tuple[Mapping[str, int], str]]) -> list[Outcome]:
         """Score register sets on the scenario, one budget unit each (classical tuners).
@@ -565,8 +1082,8 @@ class Session:
     # ---------------------------------------------------------------- results
 
     def trials(self) -> list[Any]:
-        """Every trial of the working study (a copy of the stored one), in order."""
-        return self.work.get_trials(deepcopy=False)
+        """Every trial of the study, in order (other workers' too)."""
+        return self.study.get_trials(deepcopy=False)
 
     def best_trial(self) -> tuple[Any, bool]:
         """The best trial and whether it meets the constraints.
@@ -575,6 +1092,11 @@ class Session:
         objectives: of the feasible Pareto front, the trial best in the first objective.
         """
         return best_trial(self.trials(), self.problem.multi_objective)
+
+    def overhead(self) -> dict[str, float]:
+        """CPU seconds this worker's main thread spent asking (sampler and storage) and
+        telling (storage)."""
+        return {"ask_s": self._ask_time_s, "tell_s": self._tell_time_s}
 
 
 def scored_trials(trials: Sequence[Any]) -> list[Any]:

@@ -10,11 +10,11 @@ family and plant family in the registries (:func:`servogym.chips._family.familie
 using the family's first model unless ``chip_model=`` names another
 (``gymnasium.make("servogym/Tune-PMD-VerticalAxis-v0", chip_model="MC58000")``);
 ``<Plant>`` is the plant family in CamelCase (``VerticalAxis``). Importing this package
-registers them.
+registers them, and so does ``import servogym`` (cheaply: string entry points).
 
 Example:
     >>> import gymnasium as gym
-    >>> import servogym.envs
+    >>> import servogym
     >>> env = gym.make("servogym/Tune-PMD-VerticalAxis-v0")
 """
 
@@ -24,6 +24,7 @@ import textwrap
 
 import gymnasium as gym
 
+from servogym import _registration
 from servogym.chips._family import ChipFamily, families
 from servogym.envs._actions import ACTION_TYPES, ActionMap, RawActions, UnitActions
 from servogym.envs._common import action_table, default_model
@@ -34,8 +35,10 @@ from servogym.envs._tune import IDENT_SCALE, TuneEnv
 from servogym.envs._tune import observation_table as _tune_obs_table
 from servogym.plants import PLANTS
 
-NAMESPACE = "servogym"
-VERSION = 0
+NAMESPACE = _registration.NAMESPACE
+VERSION = _registration.VERSION
+plant_id_name = _registration.plant_id_name
+ENTRY_POINTS = _registration.ENTRY_POINTS
 
 
 def family_id_name(family: ChipFamily) -> str:
@@ -43,43 +46,25 @@ def family_id_name(family: ChipFamily) -> str:
     return getattr(family, "env_name", None) or family.name.upper()
 
 
-def plant_id_name(plant: str) -> str:
-    """The plant family's part of an env id (``vertical-axis`` -> ``VerticalAxis``)."""
-    return "".join(part.capitalize() for part in plant.replace("_", "-").split("-"))
-
-
 def env_id(kind: str, family: ChipFamily, plant: str) -> str:
     """The registered id of an env kind (``"Tune"``, ``"Schedule"``) for a family and plant."""
-    return f"{NAMESPACE}/{kind}-{family_id_name(family)}-{plant_id_name(plant)}-v{VERSION}"
-
-
-ENTRY_POINTS = {
-    "Tune": "servogym.envs._tune:TuneEnv",
-    "Schedule": "servogym.envs._schedule:ScheduleEnv",
-}
+    return _registration.make_id(kind, family_id_name(family), plant)
 
 
 def register_envs() -> list[str]:
-    """Register every kind x chip family x plant family (idempotent); return the ids."""
-    ids = []
-    for family in families().values():
-        for plant in PLANTS:
-            for kind, entry_point in ENTRY_POINTS.items():
-                eid = env_id(kind, family, plant)
-                ids.append(eid)
-                if eid in gym.registry:
-                    continue
-                gym.register(
-                    id=eid,
-                    entry_point=entry_point,
-                    kwargs={
-                        "chip_model": default_model(family),
-                        "plant": plant,
-                        "family": family.name,
-                    },
-                    disable_env_checker=False,
-                )
-    return ids
+    """Register every kind x chip family x plant family (idempotent); return the ids.
+
+    ``import servogym`` has already registered the built-in ones
+    (:mod:`servogym._registration`); this adds any family or plant registered since.
+    """
+    return [
+        eid
+        for family in families().values()
+        for plant in PLANTS
+        for eid in _registration.register(
+            family.name, family_id_name(family), default_model(family), plant
+        )
+    ]
 
 
 def registered_ids() -> list[str]:

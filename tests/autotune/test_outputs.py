@@ -46,7 +46,7 @@ def tuned_run(tmp_path_factory):
 def test_a_tuned_run_writes_every_output_file(tuned_run):
     out, result, summary = tuned_run
     family, _ = get_chip("MC2100")
-    expected = {"study.db", "trials.csv", "response.png", "convergence.png", "summary.json"}
+    expected = {"study.journal", "trials.csv", "response.png", "convergence.png", "summary.json"}
     expected |= set(export_names(family).values())
     assert expected <= {p.name for p in out.iterdir()}
     assert {"best_params.json", "best_params.c", "best_params_host.txt"} <= expected

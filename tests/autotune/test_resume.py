@@ -1,11 +1,10 @@
-"""Studies persist; a killed or interrupted run resumes without losing a finished trial."""
+"""Studies persist; a killed or interrupted worker loses no trial, and none is evaluated twice."""
 
 from __future__ import annotations
 
 import os
 import pathlib
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -14,6 +13,7 @@ import optuna
 import pytest
 
 from servogym.autotune import TuneError, run_study
+from servogym.autotune._session import counts_toward_budget
 
 from .helpers import short_problem, trial_table
 
@@ -22,6 +22,8 @@ ROOT = str(pathlib.Path(__file__).resolve().parents[2])
 WORKER = """
 import sys
 sys.path.insert(0, {root!r})
+import servogym.autotune._session as session
+session.HEARTBEAT_INTERVAL_S, session.GRACE_PERIOD_S = 1, 2
 from tests.autotune.helpers import short_problem
 from servogym.autotune import run_study
 run_study(short_problem(seed=7), "tpe", {budget}, storage={url!r}, study_name="kill",
@@ -29,59 +31,77 @@ run_study(short_problem(seed=7), "tpe", {budget}, storage={url!r}, study_name="k
 """
 
 
-def n_stored(db: pathlib.Path) -> int:
+def load(url: str) -> list:
+    from servogym.autotune._session import open_storage
+
+    return optuna.load_study(study_name="kill", storage=open_storage(url)).get_trials()
+
+
+def n_complete(url: str) -> int:
     try:
-        with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=1) as con:
-            return con.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
-    except sqlite3.Error:
+        return sum(t.state.name == "COMPLETE" for t in load(url))
+    except Exception:  # not created yet
         return 0
 
 
-def test_a_killed_run_resumes_keeps_every_finished_trial_and_equals_an_uninterrupted_one(
-    tmp_path,
+@pytest.fixture
+def short_heartbeat(monkeypatch):
+    import servogym.autotune._session as session
+
+    monkeypatch.setattr(session, "HEARTBEAT_INTERVAL_S", 1)
+    monkeypatch.setattr(session, "GRACE_PERIOD_S", 2)
+
+
+@pytest.mark.parametrize("kind", ["journal", "sqlite"])
+def test_a_killed_worker_loses_nothing_its_running_trials_are_retried(
+    tmp_path, kind, short_heartbeat
 ):
-    budget = 96
-    db = tmp_path / "study.db"
-    url = f"sqlite:///{db}"
+    budget = 48
+    url = str(tmp_path / "study.journal") if kind == "journal" else f"sqlite:///{tmp_path}/s.db"
     proc = subprocess.Popen(
         [sys.executable, "-c", WORKER.format(root=ROOT, budget=budget, url=url, resume=False)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
     )  # fmt: skip
     deadline = time.monotonic() + 240
-    while n_stored(db) < 13 and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.02)
+    while n_complete(url) < 13 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
     assert proc.poll() is None, "the worker ended before it could be killed"
     os.kill(proc.pid, signal.SIGKILL)  # no chance to clean up
     proc.wait(timeout=30)
     assert proc.returncode == -signal.SIGKILL
 
-    storage = optuna.storages.RDBStorage(url)
-    before = optuna.load_study(study_name="kill", storage=storage).get_trials()
-    assert 13 <= len(before) < budget
-    assert all(t.state.name == "COMPLETE" for t in before)
-    assert [t.number for t in before] == list(range(len(before)))
+    before = load(url)
+    done = [t for t in before if t.state.name == "COMPLETE"]
+    running = [t for t in before if t.state.name == "RUNNING"]
+    assert 13 <= len(done) < budget and len(done) + len(running) == len(before)
 
     resumed = run_study(
         short_problem(seed=7), "tpe", budget, storage=url, study_name="kill",
         n_workers=2, batch_size=8, resume=True,
     )  # fmt: skip
-    after = optuna.load_study(study_name="kill", storage=storage).get_trials()
-    assert len(after) == len(resumed.trials) == budget
-    assert trial_table(after[: len(before)]) == trial_table(before)  # nothing lost or changed
-    for old, new in zip(before, after, strict=False):
-        assert old.datetime_complete == new.datetime_complete  # kept, not re-run
-    uninterrupted = run_study(
-        short_problem(seed=7), "tpe", budget, storage=None, n_workers=1, batch_size=8
-    )
-    assert trial_table(after) == trial_table(uninterrupted.trials)
+    after = load(url)
+    assert [t.number for t in resumed.trials] == [t.number for t in after]
+    counted = [t for t in after if counts_toward_budget(t)]
+    assert len(counted) == budget  # the budget is exact
+    assert all(t.state.name == "COMPLETE" for t in counted)
+    by_number = {t.number: t for t in after}
+    for old in done:  # kept, not re-run
+        assert by_number[old.number].datetime_complete == old.datetime_complete
+        assert trial_table([by_number[old.number]]) == trial_table([old])
+    for old in running:  # failed for the dead worker, then evaluated once with its parameters
+        assert by_number[old.number].state.name == "FAIL"
+        (retry,) = [t for t in counted if t.system_attrs.get("failed_trial") == old.number]
+        if old.params:  # (a trial killed before its parameters were written is asked anew)
+            assert retry.params == old.params
+    params = [tuple(sorted(t.params.items())) for t in counted]
+    assert len(set(params)) == len(params)  # no parameter set evaluated twice
 
 
 class Interrupt(Exception):
     pass
 
 
-@pytest.mark.parametrize("tuner", ["model-based", "sobol"])
-def test_an_interrupted_run_resumes_to_the_same_study(tmp_path, tuner):
+def test_an_interrupted_classical_run_resumes_to_the_same_study(tmp_path):
     url = f"sqlite:///{tmp_path / 'study.db'}"
     problem = short_problem(seed=2)
 
@@ -90,11 +110,37 @@ def test_an_interrupted_run_resumes_to_the_same_study(tmp_path, tuner):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        run_study(problem, tuner, 12, storage=url, batch_size=4, progress=stop_after_five)
-    resumed = run_study(problem, tuner, 12, storage=url, resume=True)
-    full = run_study(problem, tuner, 12, storage=None, batch_size=4)
+        run_study(problem, "model-based", 12, storage=url, progress=stop_after_five)
+    resumed = run_study(problem, "model-based", 12, storage=url, resume=True)
+    full = run_study(problem, "model-based", 12, storage=None)
     assert trial_table(resumed.trials) == trial_table(full.trials)
     assert resumed.best_values == full.best_values
+
+
+@pytest.mark.parametrize("tuner", ["sobol", "tpe"])
+def test_an_interrupted_sampler_requeues_its_trials_and_a_resume_evaluates_them(tmp_path, tuner):
+    url = str(tmp_path / "study.journal")
+    problem = short_problem(seed=2)
+
+    def stop_after_five(done, budget, best):
+        if done >= 5:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_study(problem, tuner, 16, storage=url, batch_size=4, progress=stop_after_five)
+    from servogym.autotune._session import open_storage
+
+    stopped = optuna.load_study(study_name="servogym", storage=open_storage(url)).get_trials()
+    failed = [t for t in stopped if t.state.name == "FAIL"]
+    queued = [t for t in stopped if t.state.name == "WAITING"]
+    assert failed and len(queued) == len(failed)  # re-queued at once, no heartbeat wait
+    assert not [t for t in stopped if t.state.name == "RUNNING"]
+    resumed = run_study(problem, tuner, 16, storage=url, resume=True)
+    counted = [t for t in resumed.trials if counts_toward_budget(t)]
+    assert len(counted) == 16 and all(t.state.name == "COMPLETE" for t in counted)
+    for f in failed:
+        (retry,) = [t for t in counted if t.system_attrs.get("failed_trial") == f.number]
+        assert retry.params == f.params
 
 
 def test_resume_refuses_what_it_cannot_continue(tmp_path):

@@ -107,7 +107,8 @@ def test_check_command_passes_and_fails_with_exit_codes(tmp_path):
     assert r.exit_code == 1
     assert "fail: phase margin:" in r.output and "deg short" in r.output
     r = RUNNER.invoke(app, ["check", str(path), "--plant", "rotary", "--chip", "MC2100"])
-    assert r.exit_code == 2 and "--chip MC2100 is a pmd model, but the file is a parker6k" in r.output
+    assert r.exit_code == 2
+    assert "--chip MC2100 is a pmd model, but the file is a parker6k" in r.output
     r = RUNNER.invoke(app, ["check", str(path), "--plant", "rotary", "--min-gain-margin", "-1"])
     assert r.exit_code == 2
     assert "min_gain_margin_db must satisfy 0 <= min_gain_margin_db <= 60" in r.output

@@ -70,6 +70,10 @@ def benchmark_command(
             "<suite>.json from the best safe sets of the benchmark runs in this folder.",
         ),
     ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print the report's summary as JSON (messages go to stderr)."),
+    ] = False,
 ) -> None:
     """Benchmark autotuners on a versioned suite (resumable: finished jobs are skipped)."""
     from rich.console import Console
@@ -95,7 +99,7 @@ def benchmark_command(
     )
     from servogym.autotune.bench._suite import get_suite
 
-    console = Console()
+    console = Console(stderr=as_json)
     check_count("--seeds", seeds)
     check_count("--workers", workers)
     if not [t for t in tuners.split(",") if t.strip()]:
@@ -210,3 +214,5 @@ def benchmark_command(
                            tuners=tuner_list, instances=ids, skipped=skipped,
                            notes=notes)  # fmt: skip
     console.print(f"report: {out / 'report.md'} ({len(summary['rows'])} rows)")
+    if as_json:
+        typer.echo(json.dumps({"report": str(out / "report.md"), **summary}, indent=1, default=str))

@@ -1,0 +1,5 @@
+"""``python -m servogym``: the ``servogym`` command."""
+
+from servogym.cli import main
+
+main()
