@@ -162,9 +162,7 @@ def tune_command(
     check_count("--check-candidates", check_candidates)
     if out.exists() and not out.is_dir():
         fail(f"--out {str(out)!r} is a file; give a folder for the run's outputs.")
-    previous = [
-        n for n in (MANIFEST, PENDING, "study.db", "study.journal") if (out / n).exists()
-    ]
+    previous = [n for n in (MANIFEST, PENDING, "study.db", "study.journal") if (out / n).exists()]
     if previous and not resume:
         fail(
             f"--out {str(out)!r} already holds a tune run ({', '.join(previous)}); pass "

@@ -357,6 +357,7 @@ def design_start(problem: TuneProblem, config: TuneConfig) -> dict[str, Any]:
         "evaluations": len(res.trials),
     }
 
+
 def check_candidates(result: StudyResult, config: TuneConfig) -> tuple[StudyResult, CheckReport]:
     """Check the best trials, best first, until one passes; return it (or the best).
 

@@ -182,8 +182,11 @@ class ScheduleEnv(gym.Env):
         self.defaults = self.scenario.default_params()
         self.plant = self.plant_family.build(self.scenario.draw_plant(np.random.default_rng(0)))
         self.loop = ServoLoop(
-            self.plant, self.defaults, self.scenario.assumptions,
-            integrator=self.scenario.integrator, substeps=self.scenario.substeps,
+            self.plant,
+            self.defaults,
+            self.scenario.assumptions,
+            integrator=self.scenario.integrator,
+            substeps=self.scenario.substeps,
         )
         self.actions = make_action_map(
             action_type, self.chip, self.scenario.chip_model, params, fixed

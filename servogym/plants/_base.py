@@ -52,6 +52,7 @@ GRAVITY_MPS2 = 9.81
 _STATE_SIG = mujoco.mjtState.mjSTATE_INTEGRATION
 """What ``Plant.set_params(keep_state=True)`` saves: everything integration needs."""
 
+
 class PlantParameterError(ValueError):
     """A plant parameter is unknown, of the wrong type, or outside its family's legal range."""
 
