@@ -314,7 +314,7 @@ def simulate(
     try:
         loaded = read_params_file(params, params_format, chip, what="--params") if params else None
         model = loaded.params.model if loaded else (chip or "MC2100")
-        if substeps < 1:
+        if substeps is not None and substeps < 1:
             _fail(f"--substeps must be an integer >= 1; got --substeps {substeps}.")
         moves = []
         for text in move or []:

@@ -210,7 +210,10 @@ def tune_command(
         if storage is not None:
             from servogym.autotune._session import open_storage
 
-            open_storage(storage)
+            try:
+                open_storage(storage)
+            except TuneError as exc:
+                fail(f"--storage {storage!r}: {exc}")
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
         return
@@ -257,7 +260,10 @@ def tune_command(
         )
         raise typer.Exit(code=130) from None
     except (TuneError, ParameterError, FileSafetyError, KeyError, ValueError) as exc:
-        fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
+        message = str(exc.args[0]) if isinstance(exc, KeyError) else str(exc)
+        if message.startswith("cannot open the study storage"):  # the default storage
+            message = f"--storage (default: the run folder's study): {message}"
+        fail(message)
         return
     except OSError as exc:
         fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")

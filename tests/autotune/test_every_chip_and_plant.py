@@ -35,11 +35,14 @@ def _check_outputs(out, model: str) -> None:
 
 @pytest.mark.parametrize("model", MODELS)
 def test_main_job_completes_for_every_chip_model(tmp_path, model):
+    # --force: at budget 2 the set may fail the check (issue 13), and this test is about the
+    # job reaching and writing every export the model takes; the check still runs.
     config = TuneConfig(
         chip=model, plant="rotary", out=tmp_path, budget=2, tuner="random", workers=1,
-        moves=SHORT_MOVES["rotary"], batch_size=2,
+        moves=SHORT_MOVES["rotary"], batch_size=2, check_candidates=1, force=True,
     )  # fmt: skip
-    tune(config)
+    _, summary = tune(config)
+    assert summary["check"]["cases"] and summary["hardware_files_withheld"] == []
     _check_outputs(tmp_path, model)
 
 
@@ -49,7 +52,8 @@ def test_main_job_completes_for_every_chip_model(tmp_path, model):
 def test_servogym_tune_completes_for_every_chip_model_on_every_plant(tmp_path, model, plant):
     out = tmp_path / "run"
     args = ["tune", "--chip", model, "--plant", plant, "--budget", "3", "--out", str(out),
-            "--tuner", "random", "--workers", "1"]  # fmt: skip
+            "--tuner", "random", "--workers", "1", "--check-candidates", "1",
+            "--force"]  # fmt: skip
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     _check_outputs(out, model)
