@@ -1,0 +1,115 @@
+"""Budget accounting and feasibility-first selection (docs/autotune.md, "Budget").
+
+Every evaluation is one trial: a sampler fills the budget exactly, whatever its remainder
+after whole batches; a classical procedure never exceeds it and, at budgets below what its
+procedure needs, spends all of it; an experiment or candidate beyond it is refused. The
+tuned set is the cheapest *feasible* trial, however cheap an infeasible one is.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import optuna
+import pytest
+
+from servogym.autotune import TUNERS, run_study
+from servogym.autotune._session import BudgetExhausted, Session, best_trial
+from servogym.autotune._space import register_values
+
+from .helpers import short_problem
+
+
+@pytest.mark.parametrize("batch_size", [4, 3])
+def test_a_sampler_spends_exactly_k_batches_plus_one(batch_size):
+    # budget = 2 batches + 1: two full batches, then a batch of one trial.
+    budget = 2 * batch_size + 1
+    r = run_study(short_problem(), "random", budget, storage=None, n_workers=2,
+                  batch_size=batch_size)  # fmt: skip
+    assert len(r.trials) == budget
+    assert [t.number for t in r.trials] == list(range(budget))
+    batches = [tuple(t.user_attrs["batch"]) for t in r.trials]
+    b = batch_size
+    assert batches == [(0, b)] * b + [(b, 2 * b)] * b + [(2 * b, 2 * b + 1)]
+    assert Counter(t.user_attrs["kind"] for t in r.trials) == {"sample": budget}
+
+
+def test_a_warm_start_counts_against_the_budget():
+    # Trial 0 is the warm start; the sampler then asks 1..4 and 5..8: 9 trials in all.
+    problem = short_problem()
+    warm = register_values(problem.scenario.default_params())
+    r = run_study(problem, "random", 9, storage=None, n_workers=1, batch_size=4,
+                  warm_start=warm)  # fmt: skip
+    assert len(r.trials) == 9
+    assert r.trials[0].user_attrs["kind"] == "warm_start"
+    assert [tuple(t.user_attrs["batch"]) for t in r.trials[1:]] == [(1, 5)] * 4 + [(5, 9)] * 4
+
+
+@pytest.mark.parametrize("tuner", ["vendor-step", "relay", "model-based"])
+def test_a_classical_tuner_spends_exactly_a_budget_it_cannot_outgrow(tuner):
+    # At its minimum budget, and one above, every evaluation is used: the procedures
+    # truncate their search phases to leave room for their candidates.
+    low = TUNERS[tuner].min_budget
+    for budget in (low, low + 1):
+        r = run_study(short_problem(), tuner, budget, storage=None, n_workers=1)
+        assert len(r.trials) == budget, (tuner, budget)
+        kinds = Counter(t.user_attrs["kind"] for t in r.trials)
+        assert kinds["experiment"] >= 1 and kinds["candidate"] >= 1
+        assert set(kinds) <= {"experiment", "candidate"}
+
+
+def test_an_experiment_or_candidates_beyond_the_budget_are_refused():
+    problem = short_problem()
+    values = register_values(problem.scenario.default_params())
+    ran = []
+    with Session(problem, budget=2, storage=None, study_name="b", tuner_name="t") as s:
+        s.experiment(values, "first", lambda ev: ran.append(1) or {"ok": 1})
+        assert s.remaining == 1
+        # Two candidates with one evaluation left: refused whole, nothing evaluated.
+        with pytest.raises(BudgetExhausted, match="2 candidates but 1 evaluations left"):
+            s.candidates([(values, "a"), (values, "b")])
+        assert s.remaining == 1 and len(s.trials()) == 1
+        (outcome,) = s.candidates([(values, "last")])
+        assert s.remaining == 0 and len(s.trials()) == 2
+        # Nothing left: the experiment is refused before it runs.
+        with pytest.raises(BudgetExhausted, match="no evaluation left for an experiment"):
+            s.experiment(values, "too many", lambda ev: ran.append(2) or {})
+        with pytest.raises(BudgetExhausted, match="1 candidates but 0 evaluations left"):
+            s.candidates([(values, "c")])
+    assert ran == [1]
+    assert [t.user_attrs["kind"] for t in s.trials()] == ["experiment", "candidate"]
+    assert outcome.cost == s.trials()[1].values[0]
+
+
+def frozen(number: int, cost: float, fe: float, kind: str = "sample", second: float = 0.0):
+    t = optuna.trial.create_trial(
+        values=[cost, second], constraints={"following_error": fe}, user_attrs={"kind": kind}
+    )
+    t.number = number
+    return t
+
+
+def test_an_infeasible_trial_cheaper_than_a_feasible_one_is_not_selected():
+    trials = [frozen(0, 5.0, 0.0), frozen(1, 1.0, 0.5), frozen(2, 3.0, -2.0)]
+    best, feasible = best_trial(trials, multi_objective=False)
+    # Trial 1 costs least but breaks its constraint; trial 0's constraint value 0 is met
+    # (feasible means every value <= 0); trial 2 is the cheapest feasible one.
+    assert best.number == 2 and feasible
+    best, feasible = best_trial(trials[:2], multi_objective=False)
+    assert best.number == 0 and feasible
+    # With no feasible trial, the cheapest of all, flagged infeasible.
+    best, feasible = best_trial([frozen(0, 5.0, 1.0), frozen(1, 1.0, 0.5)], False)
+    assert best.number == 1 and not feasible
+    # Ties in cost go to the earlier trial; experiments never count.
+    best, _ = best_trial([frozen(0, 2.0, 0.0, "experiment"), frozen(3, 2.0, 0.0),
+                          frozen(1, 2.0, 0.0)], False)  # fmt: skip
+    assert best.number == 1
+
+
+def test_multi_objective_selection_is_feasible_pareto_first():
+    # Trial 1 dominates both others but is infeasible; of the feasible front {0, 2}, the
+    # one best in the first objective is 2.
+    trials = [frozen(0, 4.0, -1.0, second=1.0), frozen(1, 1.0, 1.0, second=0.5),
+              frozen(2, 3.0, 0.0, second=2.0), frozen(3, 5.0, 0.0, second=3.0)]  # fmt: skip
+    best, feasible = best_trial(trials, multi_objective=True)
+    assert best.number == 2 and feasible

@@ -1,0 +1,146 @@
+"""Metrics and divergence at their edges, hand-computed from docs/simulation.md and the
+EpisodeMetrics docstrings: the window after the move, the steady-state tail, the ticks a
+diverged episode ran, both sides of the travel and error bounds, amplifier saturation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from servogym.chips.pmd import PMDParams
+from servogym.plants import get_plant
+from servogym.sim import ServoLoop
+from tests.sim.test_runner import metrics_of, ramp
+
+
+def test_metrics_window_starts_after_the_move():
+    # dt = 0.5 s, band 1. The move ends at tick 1 (move_end = 1), where the actual is already
+    # 3 past the target: that tick belongs to the move, not to the overshoot or the settling.
+    # After it: 11 (1 past), 10. Overshoot 1; |e| > 1 never after tick 1: settled at once,
+    # settling time (max(-1 + 1, 1) - 1) * 0.5 = 0.
+    m = metrics_of([5, 10, 10, 10], [0, 13, 11, 10], [0] * 4, move_end=1, target=10,
+                   direction=1)  # fmt: skip
+    assert m["overshoot"] == 1
+    assert m["settled"] == 1.0 and m["settling_time"] == 0.0
+    # max_following_error covers ticks 0..move_end: |5|, |-3| -> 5 (tick 2's -1 is after).
+    assert m["max_following_error"] == 5
+    # |e| = 2 > 1 at tick 2: settles from tick 3, (3 - 1) * 0.5 = 1.0 s.
+    m = metrics_of([5, 10, 10, 10], [0, 13, 12, 10], [0] * 4, move_end=1, target=10,
+                   direction=1)  # fmt: skip
+    assert m["overshoot"] == 2 and m["settling_time"] == 1.0
+
+
+def test_metrics_move_ending_on_the_last_tick_never_settles():
+    # move_end = n - 1: no tick after the move. Not settled; settling time = (n - end) ticks
+    # = 1 * 0.5 s; no overshoot window at all.
+    m = metrics_of([1, 2, 3], [1, 2, 3], [0] * 3, move_end=2, target=3, direction=1)
+    assert m["settled"] == 0.0 and m["settling_time"] == 0.5 and m["overshoot"] == 0
+
+
+def test_metrics_without_a_move():
+    # move_end = -1, direction 0: every tick is "after the move"; max following error is
+    # over the whole episode; settling measured from tick 0: |e| > 1 last at tick 1 ->
+    # (2 - 0) * 0.5 = 1.0 s; overshoot 0 (no direction).
+    m = metrics_of([0, 0, 0, 0], [2, -3, 1, 0], [0] * 4, move_end=-1, target=0, direction=0)
+    assert m["max_following_error"] == 3
+    assert m["settling_time"] == 1.0 and m["settled"] == 1.0
+    assert m["overshoot"] == 0
+
+
+def test_metrics_steady_state_tail_is_the_last_tenth():
+    # n = 25: the tail is n // 10 = 2 ticks: errors 3 and 5 -> 4.0 (the tick before, 9, is
+    # not in it).
+    errors = [0] * 22 + [9, 3, 5]
+    commanded = [100] * 25
+    actual = [100 - e for e in errors]
+    m = metrics_of(commanded, actual, [0] * 25, move_end=-1, target=100, direction=0)
+    assert m["steady_state_error"] == 4.0
+    # n = 9: n // 10 = 0, at least one tick: the last error alone.
+    m = metrics_of(commanded[:9], [100, 100, 100, 100, 100, 100, 100, 91, 97], [0] * 9,
+                   move_end=-1, target=100, direction=0)  # fmt: skip
+    assert m["steady_state_error"] == 3.0
+    # n = 30: 3 ticks, |-6|, 0, 3 -> 3.0.
+    actual = [100] * 27 + [106, 100, 97]
+    m = metrics_of([100] * 30, actual, [0] * 30, move_end=-1, target=100, direction=0)
+    assert m["steady_state_error"] == 3.0
+
+
+def test_metrics_cover_only_the_ticks_run():
+    # Traces longer than n (a diverged episode in reused buffers): only the first 3 ticks.
+    # Saturated (|c| >= 100): ticks 0 and 2 -> 2/3; the stale ticks 3..5 do not count.
+    from servogym.sim._metrics import compute_metrics
+
+    c = np.array([10, 10, 10, 10, 10, 10], np.int64)
+    a = np.array([0, 5, 10, 10, 10, 10], np.int64)
+    u = np.array([100, 0, -100, 100, 100, 100], np.int64)
+    vals = compute_metrics(c, a, u, 3, -1, 10, 0, 0.5, 1.0, 100)
+    assert vals[7] == pytest.approx(2 / 3)  # saturation_fraction
+    assert vals[0] == 0.5 * (10 + 5 + 0)  # iae
+    # rms over 3 ticks: sqrt((100^2 + 0 + 100^2) / 3) / 32768; chatter (100 + 100) / 2.
+    assert vals[6] == pytest.approx(np.sqrt(20000 / 3) / 32768)
+    assert vals[8] == pytest.approx(100 / 32768)
+
+
+def hold(positions) -> object:
+    """A profile of the given commanded positions (counts), starting at 0, no feed-forward."""
+    from types import SimpleNamespace
+
+    pos = np.asarray(positions, np.int64)
+    zeros = np.zeros(pos.shape[0], np.int64)
+    return SimpleNamespace(position=pos, velocity=zeros, acceleration=zeros.copy(), start=0)
+
+
+OFF = dict(model="MC2100", kp=0, ki=0, kd=0, kvff=0, kaff=0, position_error_limit=2**31 - 1)
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_error_bound_both_sides_at_equality(sign):
+    # No gains, no bias: the command is 0 and the plant stays at rest (actual 0), so the
+    # error is the commanded position. max_error_counts = 10: |e| = 10 does not exceed it;
+    # 11 at tick 2 ends the episode there.
+    plant = get_plant("rotary").build()
+    loop = ServoLoop(plant, PMDParams(**OFF), max_error_counts=10)
+    r = loop.run(hold([5 * sign, 10 * sign, 11 * sign, 12 * sign]), traces=True)
+    m = r.metrics
+    assert m.diverged and m.divergence_reason == "error_bound"
+    assert m.divergence_tick == 2 and m.n_ticks == 3
+    assert r.traces.error.tolist() == [5 * sign, 10 * sign, 11 * sign]
+
+
+def test_negative_bias_drives_into_the_lower_travel_limit():
+    # Full negative bias, no gains: the axis runs into the margin in front of the lower hard
+    # stop; the episode ends there, every tick ran saturated (|command| = motor_limit).
+    plant = get_plant("rotary").build()
+    params = PMDParams(**{**OFF, "bias": -32767, "kout": 0})
+    r = ServoLoop(plant, params, max_error_counts=2**31 - 1).run(ramp(0, 1, 200_000),
+                                                                 traces=True)  # fmt: skip
+    m = r.metrics
+    assert m.diverged and m.divergence_reason == "travel_limit"
+    io = plant.io
+    lo = io.travel_min + 0.01 * (io.travel_max - io.travel_min)
+    assert plant.data.qpos[io.qpos_adr] < lo
+    # The traces end at the divergence tick, and the actual position there is below start.
+    assert r.traces.actual.shape[0] == m.n_ticks and r.traces.actual[-1] < 0
+    # saturation_fraction counts the ticks that ran: all of them.
+    assert np.all(r.traces.command == -32767)
+    assert m.saturation_fraction == 1.0
+
+
+@pytest.mark.parametrize("bias", [32767, -32767, 8000])
+def test_amplifier_saturates_on_both_sides_with_a_hand_built_axis(bias):
+    # The plants scale the amplifier at peak / 32768 per count, so a 16-bit command never
+    # asks for more than the peak current. A hand-built axis with twice that scale does:
+    # command -32767 asks for -1.99994 peak and gets -peak; +32767 gets +peak; 8000 asks for
+    # 8000 * 2 peak / 32768 = 0.48828125 peak, inside the range, and gets it exactly.
+    plant = get_plant("rotary").build()
+    peak = plant.io.peak_current_a
+    plant.io = dataclasses.replace(plant.io, amp_amps_per_count=2 * peak / 32768)
+    params = PMDParams(**{**OFF, "bias": bias, "kout": 0})
+    r = ServoLoop(plant, params, max_error_counts=2**31 - 1).run(hold([0] * 50), traces=True)
+    expected = max(-peak, min(peak, bias * 2 * peak / 32768))
+    assert abs(expected) == peak or expected == 0.48828125 * peak
+    assert np.all(r.traces.command == bias)
+    assert np.all(r.traces.current_a == expected)
