@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench mutation clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -29,6 +29,17 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python experiments/bench_servo_loop.py
+
+# Mutation testing of the spec-bearing modules (docs/testing.md). Slow (hours for every
+# mutant), resumable, not part of `make test`. Pass options through MUTATION, e.g.
+#   make mutation MUTATION="pmd-filter sim-metrics --max-mutants 60"
+MUTATION ?= --max-mutants 60
+$(VENV)/.mutation-installed: $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[test,mutation]'
+	touch $@
+
+mutation: $(VENV)/.mutation-installed
+	$(BIN)/python experiments/mutation.py $(MUTATION)
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

@@ -38,6 +38,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -162,6 +163,13 @@ def _digest(files: list[str]) -> str:
     return h.hexdigest()
 
 
+def _commit() -> str:
+    """The work tree's commit, ``-dirty`` when it has uncommitted changes."""
+    out = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=ROOT,
+                         capture_output=True, text=True)  # fmt: skip
+    return out.stdout.strip()
+
+
 def scratch(group: str) -> Path:
     """The group's own copy of the tree (groups may run in parallel processes)."""
     return OUT / "src" / group
@@ -252,9 +260,7 @@ def init_group(name: str, max_mutants: int | None, seed: int) -> None:
         "n_sampled": len(chosen),
         "sampled": len(chosen) < len(items),
         "seed": seed,
-        "commit": subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
-        ).stdout.strip(),
+        "commit": _commit(),
     }
     (OUT / f"{name}.json").write_text(json.dumps(meta, indent=1))
     print(f"{name}: {len(items)} mutants, {len(chosen)} to run, baseline {seconds:.1f} s")
@@ -271,6 +277,8 @@ def exec_group(name: str, retest: bool) -> None:
             f"{name}: the source changed since this session began; run with --fresh {name}"
         )
     command = test_command(tests)  # new covering test files are picked up
+    meta["commit"] = _commit()  # the tests in force (the source is the one of the digest)
+    (OUT / f"{name}.json").write_text(json.dumps(meta, indent=1))
     with use_db(str(OUT / f"{name}.sqlite"), WorkDB.Mode.open) as db:
         if retest:
             survivors = [
@@ -297,52 +305,81 @@ def exec_group(name: str, retest: bool) -> None:
             )
 
 
+EQUIVALENT_FILE = Path(__file__).with_name("mutation_equivalent.json")
+"""Survivors judged equivalent (the mutant computes the same results for every legal input),
+each with its reason: ``[{"file", "from", "to", "reason"}]``, matched on the file and the
+changed line's text before and after (so the judgement survives unrelated edits)."""
+
+
+def _changed_lines(diff: str) -> tuple[str, str]:
+    old = [ln[1:].strip() for ln in diff.splitlines() if ln[:1] == "-" and ln[:3] != "---"]
+    new = [ln[1:].strip() for ln in diff.splitlines() if ln[:1] == "+" and ln[:3] != "+++"]
+    return " / ".join(old), " / ".join(new)
+
+
+def equivalence(rel: str, old: str, new: str, table: list[dict]) -> str | None:
+    """The reason a survivor is equivalent, or None."""
+    if old.startswith("@njit("):
+        return "a compilation option of the decorator (cache, nogil): results unchanged"
+    for e in table:
+        if e["file"] == rel and e["from"] == old and e["to"] == new:
+            return e["reason"]
+    return None
+
+
 def report(names: list[str]) -> str:
     from cosmic_ray.work_db import WorkDB, use_db
 
+    table = json.loads(EQUIVALENT_FILE.read_text()) if EQUIVALENT_FILE.exists() else []
     rows = [
-        "| group | commit | mutants | run | killed | survived | incompetent | kill rate |",
-        "|---|---|---|---|---|---|---|---|",
+        "| group | commit | mutants | run | killed | equivalent | survived | incompetent "
+        "| killed of non-equivalent |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
-    details = []
+    live, equivalent = [], []
     for name in names:
         meta_path = OUT / f"{name}.json"
         if not meta_path.exists():
             continue
         meta = json.loads(meta_path.read_text())
-        killed = survived = incompetent = pending = 0
+        n = Counter()
         with use_db(str(OUT / f"{name}.sqlite"), WorkDB.Mode.open) as db:
-            results = dict((item.job_id, (item, res)) for item, res in db.completed_work_items)
             pending = db.num_work_items - db.num_results
-            for item, res in results.values():
+            for item, res in db.completed_work_items:
                 if res.worker_outcome.value == "skipped":
                     continue
                 outcome = res.test_outcome.value if res.test_outcome else "incompetent"
-                if outcome == "killed":
-                    killed += 1
-                elif outcome == "survived":
-                    survived += 1
-                    m = item.mutations[0]
-                    rel = Path(m.module_path).relative_to(scratch(name))
-                    diff = "\n".join(
-                        line
-                        for line in (res.diff or "").splitlines()
-                        if line[:1] in "+-" and not line.startswith(("+++", "---"))
-                    )
-                    details.append(f"- `{rel}:{m.start_pos[0]}` {m.operator_name}\n\n```diff\n"
-                                   f"{diff}\n```")  # fmt: skip
+                if outcome != "survived":
+                    n[outcome if outcome == "killed" else "incompetent"] += 1
+                    continue
+                m = item.mutations[0]
+                rel = str(Path(m.module_path).relative_to(scratch(name)))
+                old, new = _changed_lines(res.diff or "")
+                where = f"`{rel}:{m.start_pos[0]}` ({m.operator_name.removeprefix('core/')})"
+                reason = equivalence(rel, old, new, table)
+                if reason is None:
+                    n["survived"] += 1
+                    live.append(f"- {name}: {where}: `{old}` -> `{new}`")
                 else:
-                    incompetent += 1
-        done = killed + survived
-        rate = f"{100 * killed / done:.1f} %" if done else "-"
+                    n["equivalent"] += 1
+                    equivalent.append(f"- {name}: {where}: `{old}` -> `{new}`: {reason}")
+        judged = n["killed"] + n["survived"]
+        rate = f"{100 * n['killed'] / judged:.1f} %" if judged else "-"
         sampled = f"{meta['n_sampled']} sampled" if meta["sampled"] else "all"
+        ran = judged + n["equivalent"] + n["incompetent"]
         rows.append(
             f"| {name} | {meta['commit']} | {meta['n_mutants']} ({sampled}) | "
-            f"{done + incompetent}{f' ({pending} pending)' if pending else ''} | {killed} | "
-            f"{survived} | {incompetent} | {rate} |"
+            f"{ran}{f' ({pending} pending)' if pending else ''} | {n['killed']} | "
+            f"{n['equivalent']} | {n['survived']} | {n['incompetent']} | {rate} |"
         )
-    text = "\n".join(rows) + "\n\n## Survivors\n\n" + "\n\n".join(details) + "\n"
-    return text
+    return (
+        "\n".join(rows)
+        + "\n\n## Surviving mutants, not equivalent\n\n"
+        + ("\n".join(live) or "None.")
+        + "\n\n## Equivalent mutants\n\n"
+        + ("\n".join(equivalent) or "None.")
+        + "\n"
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -367,7 +404,7 @@ def main(argv: list[str] | None = None) -> None:
             exec_group(name, args.retest_survivors)
     text = report(names)
     (OUT / "report.md").write_text(text)
-    print(text.split("\n\n## Survivors")[0])
+    print(text)
 
 
 if __name__ == "__main__":

@@ -66,6 +66,20 @@ def test_metrics_steady_state_tail_is_the_last_tenth():
     actual = [100] * 27 + [106, 100, 97]
     m = metrics_of([100] * 30, actual, [0] * 30, move_end=-1, target=100, direction=0)
     assert m["steady_state_error"] == 3.0
+    # n = 19: 19 // 10 = 1 tick (a ninth would be 2): the last error, 1, alone.
+    actual = [100] * 17 + [93, 99]
+    m = metrics_of([100] * 19, actual, [0] * 19, move_end=-1, target=100, direction=0)
+    assert m["steady_state_error"] == 1.0
+
+
+def test_metrics_of_perfect_tracking_are_zero():
+    # Actual = commanded on every tick, no command: every error metric is exactly 0.
+    m = metrics_of([1, 2, 3, 3, 3], [1, 2, 3, 3, 3], [0] * 5, move_end=2, target=3,
+                   direction=1)  # fmt: skip
+    for name in ("iae", "itae", "max_following_error", "overshoot", "steady_state_error",
+                 "rms_command", "saturation_fraction", "chatter", "settling_time"):  # fmt: skip
+        assert m[name] == 0.0, name
+    assert m["settled"] == 1.0
 
 
 def test_metrics_cover_only_the_ticks_run():
