@@ -278,20 +278,24 @@ def exec_group(name: str, retest: bool) -> None:
         )
     command = test_command(tests)  # new covering test files are picked up
     meta["commit"] = _commit()  # the tests in force (the source is the one of the digest)
+    meta["command"] = command
     (OUT / f"{name}.json").write_text(json.dumps(meta, indent=1))
     with use_db(str(OUT / f"{name}.sqlite"), WorkDB.Mode.open) as db:
         if retest:
-            survivors = [
-                item.job_id
-                for item, result in db.completed_work_items
-                if result.test_outcome is not None and result.test_outcome.value == "survived"
-            ]
+            table = json.loads(EQUIVALENT_FILE.read_text()) if EQUIVALENT_FILE.exists() else []
+            survivors = []
+            for item, result in db.completed_work_items:
+                if result.test_outcome is None or result.test_outcome.value != "survived":
+                    continue
+                rel = str(Path(item.mutations[0].module_path).relative_to(scratch(name)))
+                if equivalence(rel, *_changed_lines(result.diff or ""), table) is None:
+                    survivors.append(item.job_id)
             with db._session_maker.begin() as session:  # cosmic-ray has no public "unset"
                 from cosmic_ray.work_db import WorkResultStorage
 
                 for job_id in survivors:
                     session.query(WorkResultStorage).filter_by(job_id=job_id).delete()
-            print(f"{name}: {len(survivors)} survivors to test again")
+            print(f"{name}: {len(survivors)} non-equivalent survivors to test again")
         pending = list(db.pending_work_items)
         for i, item in enumerate(pending):
             with in_tree(scratch(name)):

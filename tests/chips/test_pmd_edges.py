@@ -8,6 +8,9 @@ their exact boundaries.
 
 from __future__ import annotations
 
+import pytest
+
+from servogym.chips.pmd._reference import PMDReferenceFilter
 from tests.chips.test_pmd_filter import both, pmd
 
 MAGELLAN = dict(model="MC58000", biquad1_enable=1)
@@ -35,6 +38,36 @@ def test_biquad_feedback_a1_a2():
         **{f"biquad2_{n}": v for n, v in coeffs.items()},
     )  # fmt: skip
     assert both(p2, [100] * 5) == [1000, 1500, 1500, 1375, 1312]
+
+
+@pytest.mark.parametrize("stage", [1, 2])
+@pytest.mark.parametrize(
+    "coeff,expected",
+    [
+        # kp 1, E = 4003: x = 4003 every cycle; Y = w / 4 (floor), so one count of stale
+        # state (4004) would show as 1001. Each coefficient 1.0 (Q14 16384) adds one word:
+        ("b1", [1000, 2001, 2001]),  # w = x + x1: 4003, 8006, 8006
+        ("b2", [1000, 1000, 2001]),  # w = x + x2: 4003, 4003, 8006
+        ("a1", [1000, 2001, 3002]),  # a1 = -1.0, w = x + y1: 4003, 8006, 12009
+        ("a2", [1000, 1000, 2001]),  # a2 = -1.0, w = x + y2: 4003, 4003, 8006
+    ],
+)
+def test_each_biquad_state_word_starts_at_zero(stage, coeff, expected):
+    value = 16384 if coeff.startswith("b") else -16384
+    p = pmd(kp=1, model="MC58000", **{f"biquad{stage}_enable": 1, f"biquad{stage}_{coeff}": value})
+    assert both(p, [4003] * 3) == expected
+
+
+def test_reference_counts_cycles():
+    # n counts servo cycles from reset (spec 3, step 11); reset and update keep to that.
+    ref = PMDReferenceFilter(pmd(kp=1))
+    for _ in range(7):
+        ref.step(0, 0, 0, 0)
+    assert ref.cycle == 7
+    ref.update(pmd(kp=2))
+    assert ref.cycle == 7
+    ref.reset()
+    assert ref.cycle == 0 and ref.integral == 0 and ref.biquad_state == [[0] * 4, [0] * 4]
 
 
 def test_biquad_feedback_q15():
@@ -108,12 +141,24 @@ def test_motion_error_compare_on_the_negative_side():
     assert both(p, [-100, 0], error_limit_compare="greater_equal") == [0, 0]
 
 
+def test_smallest_negative_values_round_by_pmd_a1():
+    # kp 1, kout 1: Y = shr(E, 16). E = -1: floor -1, trunc 0; E = -65536: -1 both;
+    # E = -65537: floor -2, trunc -1.
+    p = pmd(kp=1, kout=1)
+    assert both(p, [-1, -65536, -65537]) == [-1, -1, -2]
+    assert both(p, [-1, -65536, -65537], rounding="trunc") == [0, -1, -1]
+
+
 def test_feedforward_fraction_rounding_negative():
     # PMD-A3 fraction: shr(kvff * V, 16). kvff 1, V = -1 (16.16): -1 / 65536: floor -1,
     # trunc 0. MC58000 with kout 65535: Y = shr(FF * 65535, 16): -1 -> -1 (floor), 0 -> 0.
     p = pmd(kvff=1, model="MC58000", kout=65535)
     assert both(p, [0], velocity=-1, feedforward_input="fraction") == [-1]
     assert both(p, [0], velocity=-1, feedforward_input="fraction", rounding="trunc") == [0]
+    # PMD-A4 no: FF is added after Kout, so the shift's own rounding of -1 shows: -1 or 0.
+    frac_after = dict(feedforward_input="fraction", kout_scales_feedforward="no")
+    assert both(p, [0], velocity=-1, **frac_after) == [-1]
+    assert both(p, [0], velocity=-1, rounding="trunc", **frac_after) == [0]
     # Acceleration the same way: kaff 3, A = -65537 (-1.0000153): -196611 / 65536 = -3.00002:
     # floor -4, trunc -3; Y: -4 * 65535 >> 16 = -4 (floor of -3.99994), trunc -2.99995 -> -2.
     p = pmd(kaff=3, model="MC58000", kout=65535)

@@ -6,13 +6,14 @@ diverged episode ran, both sides of the travel and error bounds, amplifier satur
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 
 from servogym.chips.pmd import PMDParams
 from servogym.plants import get_plant
-from servogym.sim import ServoLoop
+from servogym.sim import METRIC_NAMES, EpisodeMetrics, ServoLoop
 from tests.sim.test_runner import metrics_of, ramp
 
 
@@ -48,6 +49,21 @@ def test_metrics_without_a_move():
     assert m["max_following_error"] == 3
     assert m["settling_time"] == 1.0 and m["settled"] == 1.0
     assert m["overshoot"] == 0
+    # The whole episode includes the last tick.
+    m = metrics_of([0, 0, 0, 0], [2, -3, 1, 7], [0] * 4, move_end=-1, target=0, direction=0)
+    assert m["max_following_error"] == 7 and m["settled"] == 0.0
+
+
+def test_episode_metrics_refuse_non_finite_values_and_are_frozen():
+    fields = dict.fromkeys(METRIC_NAMES, 0.0)
+    extra = dict(settled=True, diverged=False, divergence_tick=-1, divergence_reason="none",
+                 n_ticks=1, dt=0.001)  # fmt: skip
+    m = EpisodeMetrics(**fields, **extra)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        m.iae = 1.0
+    for name in METRIC_NAMES:
+        with pytest.raises(ValueError, match=f"metric {name} is not finite: nan"):
+            EpisodeMetrics(**{**fields, name: math.nan}, **extra)
 
 
 def test_metrics_steady_state_tail_is_the_last_tenth():
