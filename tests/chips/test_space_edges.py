@@ -83,3 +83,13 @@ def test_single_value_register():
     one = ParamSpec("one", 7, 7, 7, "u3")
     assert one.from_unit(-1.0) == one.from_unit(0.3) == one.from_unit(1.0) == 7
     assert one.to_unit(7) == -1.0
+
+
+def test_unknown_name_suggests_at_most_three_close_matches():
+    from servogym.chips import ParameterError
+    from servogym.chips._space import resolve_name
+
+    known = ["XA", "XB", "XC", "XD"]  # every one as close to "X" as the others
+    assert resolve_name("xb", known, "model") == "XB"
+    with pytest.raises(ParameterError, match=r"Did you mean X., X., X.\?$"):
+        resolve_name("X", known, "model")
