@@ -93,3 +93,12 @@ def test_unknown_name_suggests_at_most_three_close_matches():
     assert resolve_name("xb", known, "model") == "XB"
     with pytest.raises(ParameterError, match=r"Did you mean X., X., X.\?$"):
         resolve_name("X", known, "model")
+
+
+def test_log_register_with_a_low_above_one():
+    # low 10, high 1000: log-uniform over 10..1000, no zero zone. u = 0 is t = 1/2, the
+    # geometric middle 100; to_unit(100) = 2 * 1/2 - 1 = 0; to_unit(10) = -1.
+    spec = ParamSpec("x", 10, 1000, 100, "u16", log=True)
+    assert spec.from_unit(0.0) == 100 and spec.from_unit(-1.0) == 10
+    assert spec.to_unit(100) == pytest.approx(0.0, abs=1e-12)
+    assert spec.to_unit(10) == -1.0
