@@ -174,3 +174,62 @@ def test_amplifier_saturates_on_both_sides_with_a_hand_built_axis(bias):
     assert abs(expected) == peak or expected == 0.48828125 * peak
     assert np.all(r.traces.command == bias)
     assert np.all(r.traces.current_a == expected)
+
+
+def test_episode_results_are_frozen():
+    plant = get_plant("rotary").build()
+    r = ServoLoop(plant, PMDParams(**OFF)).run(hold([0, 0]), traces=True)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        r.traces = None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        r.traces.command = None
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_runner_metrics_follow_their_definitions_on_a_real_move(sign):
+    # The runner derives move_end, the target, the direction and the default band
+    # (max(4, 0.2 % of the distance)) from the profile; recompute each metric from the
+    # traces by its docstring definition.
+    from tests.sim.test_runner import small_move
+
+    plant = get_plant("rotary").build()
+    profile = small_move(plant, 3000)
+    profile.position = sign * profile.position
+    params = PMDParams(model="MC2100", kp=3000, kd=30000, ki=100)
+    r = ServoLoop(plant, params).run(profile, traces=True)
+    m, t = r.metrics, r.traces
+    assert not m.diverged
+    pos = t.commanded
+    move_end = int(np.flatnonzero(np.diff(pos, prepend=0) != 0)[-1])
+    target, distance = int(pos[-1]), int(pos[-1])
+    band = max(4.0, 0.002 * abs(distance))
+    after = slice(move_end + 1, None)
+    past = (t.actual[after] - target) * sign
+    assert m.overshoot == max(0, past.max()) and m.overshoot > 0
+    outside = np.flatnonzero(np.abs(t.error[after]) > band)
+    last_out = move_end + 1 + int(outside[-1]) if outside.size else -1
+    n = m.n_ticks
+    settled = last_out < n - 1
+    assert m.settled == settled
+    ticks = max(last_out + 1, move_end) - move_end if settled else n - move_end
+    assert m.settling_time == pytest.approx(ticks * m.dt)
+    assert m.max_following_error == np.abs(t.error[: move_end + 1]).max()
+    assert np.array_equal(t.time_s, np.arange(n) * m.dt)
+    assert np.array_equal(t.error, pos - t.actual)
+
+
+def test_a_non_finite_state_ends_the_episode_on_its_tick():
+    # A first episode fills the trace buffers; then the plant's state is made non-finite
+    # and the next episode continues from it (reset=False): it ends at tick 0 with the
+    # actual position reported as 0 (no earlier tick), command 0, the current kept.
+    plant = get_plant("rotary").build()
+    loop = ServoLoop(plant, PMDParams(**{**OFF, "bias": 3000, "kout": 0}))
+    first = loop.run(hold([0] * 300), traces=True)
+    assert first.traces.actual[-1] != 0 and first.traces.current_a[-1] != 0
+    plant.data.qvel[plant.io.qvel_adr] = np.nan
+    r = loop.run(hold([0] * 300), traces=True, reset=False)
+    m = r.metrics
+    assert m.diverged and m.divergence_reason == "non_finite_state"
+    assert m.n_ticks == 1 and m.divergence_tick == 0
+    assert r.traces.actual.tolist() == [0] and r.traces.command.tolist() == [0]
+    assert r.traces.current_a[0] == first.traces.current_a[-1]
