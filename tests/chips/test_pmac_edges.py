@@ -88,3 +88,32 @@ def test_ixx30_product_beyond_int64():
     assert both(p.replace(proportional_gain=-8388608), [10**6]) == [-32767]
     assert both(p.replace(proportional_gain=-8388608), [-(10**6)]) == [32767]
     assert both(p.replace(proportional_gain=1), [-(10**6)]) == [-32767]
+
+
+def test_deadband_of_zero_width_and_the_smallest_negative_inside():
+    # Ixx65 = 0: no error is inside (|FE| < 0 never holds); with the offset form the offset
+    # is shr(Ixx64 * 0, 4) = 0, so FEd = FE: -1 and 1 pass unchanged even with Ixx64 = 16.
+    p = pmac(**SHOW_FED, deadband_size=0, deadband_gain=16)
+    assert both(p, [-1], fraction=[31]) == [-1]
+    assert both(p, [0], fraction=[1]) == [1]
+    # Ixx65 = 1, Ixx64 = -15: inside, FEd = shr(-1 * 1, 4): floor -1, trunc 0 (PMAC-A1).
+    p = pmac(**SHOW_FED, deadband_size=1, deadband_gain=-15)
+    assert both(p, [-1], fraction=[31]) == [-1]
+    assert both(p, [-1], fraction=[31], rounding="trunc") == [0]
+
+
+def test_every_trip_sets_the_tripped_word_to_one():
+    from servogym.chips.pmac import PMACAssumptions
+    from servogym.chips.pmac._kernel import S_TRIPPED, new_state, pmac_step
+
+    # Ixx11 = 160 under PMAC-A12 greater_equal: FE = 320 trips; Ixx63 = -1: |IS| >= 2^24
+    # after one integration of 2^20 * 32 * 16 (Ixx33 = 2^20, FE = 16 counts) trips next.
+    cases = [
+        (pmac(fatal_following_error_limit=160), dict(trip_compare="greater_equal"), [10]),
+        (pmac(integral_gain=2**20, integration_limit=-1), {}, [16, 16]),
+    ]
+    for params, asm, errors in cases:
+        state = new_state()
+        for e in errors:
+            pmac_step(state, params.to_array(), PMACAssumptions(**asm).to_array(), e, 0, 0, 0)
+        assert state[S_TRIPPED] == 1

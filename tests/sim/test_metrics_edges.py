@@ -233,3 +233,37 @@ def test_a_non_finite_state_ends_the_episode_on_its_tick():
     assert m.n_ticks == 1 and m.divergence_tick == 0
     assert r.traces.actual.tolist() == [0] and r.traces.command.tolist() == [0]
     assert r.traces.current_a[0] == first.traces.current_a[-1]
+
+
+def test_current_loop_alpha_by_hand():
+    # alpha = 1 - exp(-2 pi bw dt): bw = 1000 Hz, dt = 1e-4 s: 1 - exp(-0.6283185) = 0.4665.
+    from servogym.plants import amplifier_alpha
+    from servogym.sim._runner import current_loop_alpha
+
+    assert current_loop_alpha(1000.0, 1e-4) == pytest.approx(0.46651, abs=1e-5)
+    assert current_loop_alpha(2000.0, 154e-6) == amplifier_alpha(2000.0, 154e-6)
+    assert current_loop_alpha(0.0, 1e-4) == 1.0
+
+
+def test_runner_without_a_move_measures_the_whole_episode():
+    # A profile that never changes (move_end = -1): the largest error over every tick, and
+    # no direction, so no overshoot. The bias pushes the axis away: the error grows.
+    plant = get_plant("rotary").build()
+    r = ServoLoop(plant, PMDParams(**{**OFF, "bias": 3000, "kout": 0})).run(
+        hold([0] * 300), traces=True
+    )
+    err = np.abs(r.traces.error)
+    assert err[-1] == err.max() > err[0]
+    assert r.metrics.max_following_error == err.max() and r.metrics.overshoot == 0
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_runner_step_at_tick_zero_has_a_direction(sign):
+    # The commanded position jumps at tick 0 and holds (move_end = 0): the overshoot is
+    # measured in the step's direction from tick 1 on.
+    plant = get_plant("rotary").build()
+    params = PMDParams(model="MC2100", kp=300, kd=2000, ki=0)
+    step = 200 * sign
+    r = ServoLoop(plant, params).run(hold([step] * 1500), traces=True)
+    past = (r.traces.actual[1:] - step) * sign
+    assert r.metrics.overshoot == past.max() > 0
