@@ -113,3 +113,15 @@ def test_multi_objective_selection_is_feasible_pareto_first():
               frozen(2, 3.0, 0.0, second=2.0), frozen(3, 5.0, 0.0, second=3.0)]  # fmt: skip
     best, feasible = best_trial(trials, multi_objective=True)
     assert best.number == 2 and feasible
+
+
+def test_batch_of_one_and_illegal_counts():
+    from servogym.autotune import TuneError
+
+    # batch_size = 1 (the smallest legal): one trial per batch.
+    r = run_study(short_problem(), "random", 2, storage=None, n_workers=1, batch_size=1)
+    assert [tuple(t.user_attrs["batch"]) for t in r.trials] == [(0, 1), (1, 2)]
+    for name in ("budget", "n_workers", "batch_size"):
+        kw = {"budget": 2, "n_workers": 1, "batch_size": 1, name: 0}
+        with pytest.raises(TuneError, match=f"{name} must be an integer >= 1; got {name}=0"):
+            Session(short_problem(), storage=None, study_name="b", tuner_name="t", **kw)

@@ -81,3 +81,12 @@ def test_feedforward_terms_at_the_kernel_clamp_bounds():
     p = pk(sgp=SGP, sgaf=9_999_999)
     assert both(p, [-E_NEAR_W], [0], acceleration=[1_407_375_025], **FINE) == [6551]
     assert both(p, [-E_NEAR_W], [0], acceleration=[1_407_375_024], **FINE) == [5598]
+
+
+def test_reference_state_after_reset():
+    # Reset (spec 4, state): every word zero, the gains in force are set 0 (the reset ones).
+    from servogym.chips.parker6k import Parker6kReferenceFilter
+
+    ref = Parker6kReferenceFilter(pk(sgp=1))
+    assert (ref.active_set, ref.integral, ref.cycle, ref.tripped) == (0, 0, 0, False)
+    assert (ref.previous_actual, ref.previous_error) == (0, 0)
