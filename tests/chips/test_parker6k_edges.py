@@ -90,3 +90,21 @@ def test_reference_state_after_reset():
     ref = Parker6kReferenceFilter(pk(sgp=1))
     assert (ref.active_set, ref.integral, ref.cycle, ref.tripped) == (0, 0, 0, False)
     assert (ref.previous_actual, ref.previous_error) == (0, 0)
+
+
+def test_output_integral_error_sum_saturates_at_32_bits():
+    # PK-A4 output: I = clamp(I + E, -2^31, 2^31 - 1); Int = div(sat(SGI I T, L), 1e6).
+    # mV gains and a 16-bit DAC (D = floor(Y * 32768 / 1e6), command D). SGI = 6,250,000 and
+    # T = 160: SGI T = 1e9, Int = 1000 I q until L; SGILIM 1 V: L = 1000 * 100 * 1e6 = 1e11.
+    #   E = 2^31 - 1: I = 2^31 - 1 (at the bound); Int = L / 1e6 = 1e5 q -> D = 3276 (.8).
+    #   E = 2^31 - 1 again: I stays 2^31 - 1 -> 3276.
+    #   E = -(2^31 - 1): I = 0 -> 0 (one count off, I = +-1, would show as +-1000 q: +-33).
+    #   E = 1: I = 1: 1000 q -> D = floor(32.768) = 32.
+    p = pk(sgi=6_250_000, sgilim=1000)
+    top = 2**31 - 1
+    errs = [top, top, -top, 1]
+    assert errors(p, errs, integral_limit="output", **FINE) == [3276, 3276, 0, 32]
+    # The negative end: -2^31 twice (I = -2^31, kept), then 2^31 - 1: I = -1 -> -1000 q,
+    # D = floor(-32.768) = -33; then 1: I = 0. Int = -L: floor(-3276.8) = -3277.
+    errs = [-(2**31), -(2**31), top, 1]
+    assert errors(p, errs, integral_limit="output", **FINE) == [-3277, -3277, -33, 0]
