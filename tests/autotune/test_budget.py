@@ -122,6 +122,19 @@ def test_batch_of_one_and_illegal_counts():
     r = run_study(short_problem(), "random", 2, storage=None, n_workers=1, batch_size=1)
     assert [tuple(t.user_attrs["batch"]) for t in r.trials] == [(0, 1), (1, 2)]
     for name in ("budget", "n_workers", "batch_size"):
-        kw = {"budget": 2, "n_workers": 1, "batch_size": 1, name: 0}
-        with pytest.raises(TuneError, match=f"{name} must be an integer >= 1; got {name}=0"):
-            Session(short_problem(), storage=None, study_name="b", tuner_name="t", **kw)
+        for bad in (0, True, 2.0):
+            kw = {"budget": 2, "n_workers": 1, "batch_size": 1, name: bad}
+            with pytest.raises(TuneError, match=f"{name} must be an integer >= 1; got {name}="):
+                Session(short_problem(), storage=None, study_name="b", tuner_name="t", **kw)
+
+
+def test_a_resume_may_ask_for_exactly_the_budget_already_spent(tmp_path):
+    from servogym.autotune import TuneError
+
+    url = f"sqlite:///{tmp_path / 'study.db'}"
+    run_study(short_problem(), "random", 3, storage=url, n_workers=1, batch_size=2)
+    # Budget 3 = the 3 stored trials: nothing left to do, nothing refused.
+    r = run_study(short_problem(), "random", 3, storage=url, n_workers=1, resume=True)
+    assert len(r.trials) == 3
+    with pytest.raises(TuneError, match="already holds 3 trials, more than budget=2"):
+        run_study(short_problem(), "random", 2, storage=url, n_workers=1, resume=True)

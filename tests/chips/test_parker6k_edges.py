@@ -108,3 +108,12 @@ def test_output_integral_error_sum_saturates_at_32_bits():
     # D = floor(-32.768) = -33; then 1: I = 0. Int = -L: floor(-3276.8) = -3277.
     errs = [-(2**31), -(2**31), top, 1]
     assert errors(p, errs, integral_limit="output", **FINE) == [-3277, -3277, -33, 0]
+
+
+def test_smallest_negative_quotient_rounds_by_pk_a6():
+    # SGAF = 1 (.01), Ac = -1: AF = div(-1, 100): floor -1, trunc 0. SGP = 1, E = -15624:
+    # P = -15624 q. mV, 16-bit: D = div(U * 32768, 1e6), where U = -15625 is exactly -512.
+    #   floor: U = -15625 -> D = -512.   trunc: U = -15624 -> -511.97 -> -511.
+    p = pk(sgp=1, sgaf=1)
+    assert both(p, [-15624], [0], acceleration=[-1], **FINE) == [-512]
+    assert both(p, [-15624], [0], acceleration=[-1], rounding="trunc", **FINE) == [-511]
