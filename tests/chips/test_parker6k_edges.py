@@ -117,3 +117,13 @@ def test_smallest_negative_quotient_rounds_by_pk_a6():
     p = pk(sgp=1, sgaf=1)
     assert both(p, [-15624], [0], acceleration=[-1], **FINE) == [-512]
     assert both(p, [-15624], [0], acceleration=[-1], rounding="trunc", **FINE) == [-511]
+
+
+def test_smper_trip_on_an_error_of_minus_one():
+    # SGP 100 (10000): E = -1 gives P = -10000 q, D = floor(-0.02048) = -1, command -16.
+    # PK-A8 limit with SMPER0: any |E| > 0 trips; PK-A7 greater_equal with SMPER1: |E| >= 1.
+    p = pk(sgp=10000)
+    assert errors(p, [0, -1, 0]) == [0, -16, 0]  # SMPER0 off (default): no trip
+    assert errors(p, [0, -1, 0], smper_zero="limit") == [0, 0, 0]
+    assert errors(p.replace(smper=1), [0, -1, 0], smper_compare="greater_equal") == [0, 0, 0]
+    assert errors(p.replace(smper=1), [0, -1, 0]) == [0, -16, 0]
