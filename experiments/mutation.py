@@ -179,7 +179,7 @@ def sync_tree(group: str) -> None:
     """Copy the package, the tests and the pytest settings into the group's scratch tree."""
     src = scratch(group)
     src.mkdir(parents=True, exist_ok=True)
-    for name in ("servogym", "tests"):
+    for name in ("servogym", "tests", "docs"):  # docs: the tests compare the spec tables
         if (src / name).exists():
             shutil.rmtree(src / name)
         shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
