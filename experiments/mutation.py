@@ -138,6 +138,7 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
             "tests/chips/test_pmac_export.py",
             "tests/chips/test_parker6k_export.py",
             "tests/chips/test_paramfile.py",
+            "tests/chips/test_export_edges.py",
         ],
     ),
     "sim-metrics": (
