@@ -138,3 +138,28 @@ def test_a_resume_may_ask_for_exactly_the_budget_already_spent(tmp_path):
     assert len(r.trials) == 3
     with pytest.raises(TuneError, match="already holds 3 trials, more than budget=2"):
         run_study(short_problem(), "random", 2, storage=url, n_workers=1, resume=True)
+
+
+def test_default_batch_size_is_eight_and_every_trial_carries_its_constraints():
+    # docs/autotune.md: batches of 8 unless told. Budget 9: trials 0..7, then 8.
+    problem = short_problem()
+    r = run_study(problem, "random", 9, storage=None, n_workers=2)
+    assert [tuple(t.user_attrs["batch"]) for t in r.trials] == [(0, 8)] * 8 + [(8, 9)]
+    # Constraints on (the default): every scored trial stores the problem's constraint
+    # values, so feasibility-first selection can see them.
+    names = {"max_following_error", "saturation_fraction", "diverged"}
+    for t in r.trials:
+        assert set(t.constraints) == names, t.number
+
+
+def test_progress_reports_the_best_feasible_cost():
+    # The running best of the progress callback skips infeasible trials, however cheap,
+    # and counts a constraint value of exactly 0 as feasible.
+    seen = []
+    with Session(short_problem(), budget=5, storage=None, study_name="b", tuner_name="t",
+                 progress=lambda done, budget, best: seen.append(best)) as s:  # fmt: skip
+        for cost, fe in ((5.0, 0.5), (4.0, 0.0), (1.0, 0.5), (3.0, -1.0)):
+            s._add(optuna.trial.create_trial(
+                values=[cost], constraints={"following_error": fe}, user_attrs={"kind": "sample"}
+            ))  # fmt: skip
+    assert seen == [None, 4.0, 4.0, 3.0]
