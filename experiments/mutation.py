@@ -112,7 +112,12 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
             "servogym/chips/_family.py",
             "servogym/chips/pmac/_notch.py",
         ],
-        ["tests/chips"],
+        [
+            "tests/chips",
+            "--ignore=tests/chips/test_pmd_profile.py",
+            "--ignore=tests/chips/test_pmac_profile.py",
+            "--ignore=tests/chips/test_parker6k_profile.py",
+        ],
     ),
     "chips-profile": (
         [

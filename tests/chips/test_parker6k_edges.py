@@ -8,6 +8,8 @@ limit's equality or on the bounds where the kernel clamps an input before a prod
 
 from __future__ import annotations
 
+import pytest
+
 from tests.chips.test_parker6k_filter import both, errors, pk
 
 W = 2**47  # every term's saturation, in q (spec 4.0)
@@ -127,3 +129,13 @@ def test_smper_trip_on_an_error_of_minus_one():
     assert errors(p, [0, -1, 0], smper_zero="limit") == [0, 0, 0]
     assert errors(p.replace(smper=1), [0, -1, 0], smper_compare="greater_equal") == [0, 0, 0]
     assert errors(p.replace(smper=1), [0, -1, 0]) == [0, -16, 0]
+
+
+def test_gain_sets_are_frozen():
+    import dataclasses
+
+    from servogym.chips.parker6k import GainSet
+
+    g = GainSet(sgp=1, sgi=0, sgv=0, sgvf=0, sgaf=0)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        g.sgp = 2

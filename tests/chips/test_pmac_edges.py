@@ -8,6 +8,8 @@ expected numbers worked out from the spec.
 
 from __future__ import annotations
 
+import pytest
+
 from servogym.chips.pmac import PMACParams
 from tests.chips.test_pmac_filter import UNIT, both, pmac
 
@@ -117,3 +119,19 @@ def test_every_trip_sets_the_tripped_word_to_one():
         for e in errors:
             pmac_step(state, params.to_array(), PMACAssumptions(**asm).to_array(), e, 0, 0, 0)
         assert state[S_TRIPPED] == 1
+
+
+def test_controller_response_by_hand():
+    # docs/chips/pmac.md, section 6 (controller_response): with Ixx33 = 0, the notch off,
+    # C(z) = 2^-19 Ixx30 [Ixx08 + Ixx31 Ixx09 2^-7 (1 - z^-1)]. Defaults: Ixx30 2000,
+    # Ixx08 = Ixx09 = 96, Ixx31 1280, so Ixx31 Ixx09 / 128 = 960 and g = 2000 / 2^19.
+    #   Nyquist, z^-1 = -1: C = g (96 + 960 * 2) = 2000 * 2016 / 524288 = 7.6904296875.
+    #   fs / 4, z^-1 = -j: C = g (96 + 960 (1 + j)) = g (1056 + 960 j).
+    from servogym.chips.pmac import controller_response
+
+    p = PMACParams(integral_gain=0)
+    fs = 1.0 / p.sample_time_s
+    r = controller_response(p, [fs / 2, fs / 4])
+    g = 2000 / 2**19
+    assert r.response[0] == pytest.approx(7.6904296875, abs=1e-9)
+    assert r.response[1] == pytest.approx(g * (1056 + 960j), abs=1e-9)
