@@ -20,7 +20,8 @@ Usage::
                                    [--retest-survivors] [--report-only]
 
 ``--max-mutants N`` samples N mutants of a group (seeded, uniformly, without replacement) and
-marks the rest skipped; the report says a group was sampled. Results: a summary table on
+marks the rest skipped; the report says a group was sampled. Given again with a larger N for
+an existing session, it grows the sample (the mutants already run keep their results). Results: a summary table on
 stdout and ``runs/mutation/report.md`` (every survivor with its diff), the figures that
 ``docs/testing.md`` quotes.
 """
@@ -272,9 +273,35 @@ def init_group(name: str, max_mutants: int | None, seed: int) -> None:
     print(f"{name}: {len(items)} mutants, {len(chosen)} to run, baseline {seconds:.1f} s")
 
 
+def extend_sample(name: str, max_mutants: int) -> None:
+    """Grow a sampled session to ``max_mutants``: more of its skipped mutants become pending
+    (seeded; the mutants already run keep their results)."""
+    from cosmic_ray.work_db import WorkDB, WorkResultStorage, use_db
+
+    meta = json.loads((OUT / f"{name}.json").read_text())
+    if max_mutants <= meta["n_sampled"]:
+        return
+    with use_db(str(OUT / f"{name}.sqlite"), WorkDB.Mode.open) as db:
+        skipped = sorted(
+            item.job_id
+            for item, res in db.completed_work_items
+            if res.worker_outcome.value == "skipped"
+        )
+        more = random.Random(meta["seed"] + meta["n_sampled"]).sample(
+            skipped, min(len(skipped), max_mutants - meta["n_sampled"])
+        )
+        with db._session_maker.begin() as session:  # cosmic-ray has no public "unset"
+            for job_id in more:
+                session.query(WorkResultStorage).filter_by(job_id=job_id).delete()
+    meta["n_sampled"] += len(more)
+    meta["sampled"] = meta["n_sampled"] < meta["n_mutants"]
+    (OUT / f"{name}.json").write_text(json.dumps(meta, indent=1))
+    print(f"{name}: {len(more)} more mutants sampled, {meta['n_sampled']} in all")
+
+
 def exec_group(name: str, retest: bool) -> None:
     from cosmic_ray.mutating import mutate_and_test
-    from cosmic_ray.work_db import WorkDB, use_db
+    from cosmic_ray.work_db import WorkDB, WorkResultStorage, use_db
 
     meta = json.loads((OUT / f"{name}.json").read_text())
     files, tests = GROUPS[name]
@@ -297,8 +324,6 @@ def exec_group(name: str, retest: bool) -> None:
                 if equivalence(rel, *_changed_lines(result.diff or ""), table) is None:
                     survivors.append(item.job_id)
             with db._session_maker.begin() as session:  # cosmic-ray has no public "unset"
-                from cosmic_ray.work_db import WorkResultStorage
-
                 for job_id in survivors:
                     session.query(WorkResultStorage).filter_by(job_id=job_id).delete()
             print(f"{name}: {len(survivors)} non-equivalent survivors to test again")
@@ -412,6 +437,8 @@ def main(argv: list[str] | None = None) -> None:
             sync_tree(name)
             if args.fresh or not (OUT / f"{name}.json").exists():
                 init_group(name, args.max_mutants, args.seed)
+            elif args.max_mutants is not None:
+                extend_sample(name, args.max_mutants)
             exec_group(name, args.retest_survivors)
     text = report(names)
     (OUT / "report.md").write_text(text)
