@@ -95,8 +95,8 @@ def test_biquad_words_saturate_to_32_bits():
     # (2,147,483,647 * 8192 >> 14 floors the half). kout = 1: Y = out >> 16 = 16383.
     p = pmd(kp=32767, kout=1, **MAGELLAN, biquad1_k=8192)
     assert both(p, [100_000], accumulator="sat48") == [16383]
-    # a1 = -1.0: w = x + y1 overflows 32 bits on the second cycle and saturates: the output
-    # stays at 2^31 - 1 >> 1 ... = 16383 instead of doubling to 32767.
+    # a1 = -1.0: on the second cycle w = x + y1 = 2 (2^31 - 1) saturates to 2^31 - 1, so the
+    # output is 1,073,741,823 -> 16383 again (unsaturated it would double: Y = 32767).
     p = pmd(kp=32767, kout=1, **MAGELLAN, biquad1_k=8192, biquad1_a1=-16384)
     assert both(p, [100_000] * 2, accumulator="sat48") == [16383, 16383]
 
