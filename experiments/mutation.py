@@ -21,9 +21,9 @@ Usage::
 
 ``--max-mutants N`` samples N mutants of a group (seeded, uniformly, without replacement) and
 marks the rest skipped; the report says a group was sampled. Given again with a larger N for
-an existing session, it grows the sample (the mutants already run keep their results). Results: a summary table on
-stdout and ``runs/mutation/report.md`` (every survivor with its diff), the figures that
-``docs/testing.md`` quotes.
+an existing session, it grows the sample (the mutants already run keep their results).
+Results: a summary table on stdout and ``runs/mutation/report.md`` (every survivor with its
+changed line, equivalent ones with their reason), the figures that ``docs/testing.md`` quotes.
 """
 
 from __future__ import annotations
@@ -321,7 +321,8 @@ def exec_group(name: str, retest: bool) -> None:
                 if result.test_outcome is None or result.test_outcome.value != "survived":
                     continue
                 rel = str(Path(item.mutations[0].module_path).relative_to(scratch(name)))
-                if equivalence(rel, *_changed_lines(result.diff or ""), table) is None:
+                line = item.mutations[0].start_pos[0]
+                if equivalence(rel, *_changed_lines(result.diff or ""), table, line) is None:
                     survivors.append(item.job_id)
             with db._session_maker.begin() as session:  # cosmic-ray has no public "unset"
                 for job_id in survivors:
@@ -353,12 +354,14 @@ def _changed_lines(diff: str) -> tuple[str, str]:
     return " / ".join(old), " / ".join(new)
 
 
-def equivalence(rel: str, old: str, new: str, table: list[dict]) -> str | None:
-    """The reason a survivor is equivalent, or None."""
+def equivalence(rel: str, old: str, new: str, table: list[dict], line: int = 0) -> str | None:
+    """The reason a survivor is equivalent, or None (an entry with a ``line`` matches there
+    only, for a text that occurs on several lines)."""
     if old.startswith("@njit("):
         return "a compilation option of the decorator (cache, nogil): results unchanged"
     for e in table:
-        if e["file"] == rel and e["from"] == old and e["to"] in (new, "*"):
+        same = e["file"] == rel and e["from"] == old and e["to"] in (new, "*")
+        if same and e.get("line", line) == line:
             return e["reason"]
     return None
 
@@ -392,7 +395,7 @@ def report(names: list[str]) -> str:
                 rel = str(Path(m.module_path).relative_to(scratch(name)))
                 old, new = _changed_lines(res.diff or "")
                 where = f"`{rel}:{m.start_pos[0]}` ({m.operator_name.removeprefix('core/')})"
-                reason = equivalence(rel, old, new, table)
+                reason = equivalence(rel, old, new, table, m.start_pos[0])
                 if reason is None:
                     n["survived"] += 1
                     live.append(f"- {name}: {where}: `{old}` -> `{new}`")

@@ -163,3 +163,9 @@ def test_progress_reports_the_best_feasible_cost():
                 values=[cost], constraints={"following_error": fe}, user_attrs={"kind": "sample"}
             ))  # fmt: skip
     assert seen == [None, 4.0, 4.0, 3.0]
+
+
+def test_default_storage_is_study_db_in_the_run_folder(tmp_path):
+    from servogym.autotune._session import default_storage_url
+
+    assert default_storage_url(tmp_path) == f"sqlite:///{tmp_path.resolve()}/study.db"

@@ -139,3 +139,10 @@ def test_gain_sets_are_frozen():
     g = GainSet(sgp=1, sgi=0, sgv=0, sgvf=0, sgaf=0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         g.sgp = 2
+
+
+def test_reference_run_refuses_sequences_of_unequal_length():
+    from servogym.chips.parker6k import Parker6kReferenceFilter
+
+    with pytest.raises(ValueError, match="zip"):
+        Parker6kReferenceFilter(pk()).run([0, 0], [0], [0, 0], [0, 0])

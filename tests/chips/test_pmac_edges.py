@@ -135,3 +135,14 @@ def test_controller_response_by_hand():
     g = 2000 / 2**19
     assert r.response[0] == pytest.approx(7.6904296875, abs=1e-9)
     assert r.response[1] == pytest.approx(g * (1056 + 960j), abs=1e-9)
+
+
+def test_notch_forms_on_negative_words():
+    # FE = -1 count: O = -8192 every update; n1 = 1.0: w = x + x1 -> -8192, -16384, -16384,
+    # DAC -32, -64, -64, in both forms and both positions (the words are exact multiples of
+    # 2^22 / 2^22, so no rounding enters).
+    p = pmac(notch_n1=2**22)
+    for form in ("df1", "df2"):
+        for position in ("after_kp", "before_kp"):
+            got = both(p, [-1] * 3, notch_form=form, notch_position=position)
+            assert got == [-32, -64, -64], (form, position)

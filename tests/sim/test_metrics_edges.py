@@ -152,8 +152,10 @@ def test_negative_bias_drives_into_the_lower_travel_limit():
     io = plant.io
     lo = io.travel_min + 0.01 * (io.travel_max - io.travel_min)
     assert plant.data.qpos[io.qpos_adr] < lo
-    # The traces end at the divergence tick, and the actual position there is below start.
+    # The traces end at the divergence tick, where the position first crossed the margin:
+    # the tick before was still inside it (the axis moves far less than the margin per tick).
     assert r.traces.actual.shape[0] == m.n_ticks and r.traces.actual[-1] < 0
+    assert r.traces.actual[-1] < lo * io.counts_per_unit <= r.traces.actual[-2] + 1
     # saturation_fraction counts the ticks that ran: all of them.
     assert np.all(r.traces.command == -32767)
     assert m.saturation_fraction == 1.0
@@ -215,6 +217,7 @@ def test_runner_metrics_follow_their_definitions_on_a_real_move(sign):
     assert m.settling_time == pytest.approx(ticks * m.dt)
     assert m.max_following_error == np.abs(t.error[: move_end + 1]).max()
     assert np.array_equal(t.time_s, np.arange(n) * m.dt)
+    assert m.divergence_tick == -1 and m.divergence_reason == "none"
     assert np.array_equal(t.error, pos - t.actual)
 
 
@@ -267,3 +270,42 @@ def test_runner_step_at_tick_zero_has_a_direction(sign):
     r = ServoLoop(plant, params).run(hold([step] * 1500), traces=True)
     past = (r.traces.actual[1:] - step) * sign
     assert r.metrics.overshoot == past.max() > 0
+
+
+@pytest.mark.parametrize("side", ["lower", "upper"])
+def test_travel_bounds_at_equality(side):
+    # The bound is crossed when q < lo or q > hi: a position exactly on it is not. The plant
+    # is placed there and the episode continues from it (reset=False); no torque.
+    plant = get_plant("rotary").build()
+    io = plant.io
+    span = io.travel_max - io.travel_min
+    lo, hi = io.travel_min + 0.01 * span, io.travel_max - 0.01 * span
+    loop = ServoLoop(plant, PMDParams(**OFF), max_error_counts=2**31 - 1)
+    loop.run(hold([0]))
+    plant.data.qpos[io.qpos_adr] = lo if side == "lower" else hi
+    plant.data.qvel[io.qvel_adr] = 0.0
+    r = loop.run(hold([0]), reset=False)
+    assert not r.metrics.diverged
+    plant.data.qpos[io.qpos_adr] = np.nextafter(lo, -np.inf) if side == "lower" else (
+        np.nextafter(hi, np.inf))  # fmt: skip
+    r = loop.run(hold([0]), reset=False)
+    assert r.metrics.divergence_reason == "travel_limit"
+
+
+def test_amplifier_current_carries_over_after_a_divergence():
+    # A lagging current loop (alpha < 1) and a constant command: the current after the
+    # divergent episode's last tick is where the next episode (reset=False) starts:
+    # i_1 = i_0 + (i_ref - i_0) alpha.
+    from servogym.sim._runner import current_loop_alpha
+
+    family = get_plant("rotary")
+    plant = family.build({**family.nominal(), "current_bandwidth_hz": 500.0})
+    params = PMDParams(**{**OFF, "bias": 3000, "kout": 0})
+    loop = ServoLoop(plant, params, max_error_counts=10)
+    first = loop.run(hold([0, 0, 0, -100, -100]), traces=True)
+    assert first.metrics.divergence_reason == "error_bound" and first.metrics.n_ticks == 4
+    i0 = first.traces.current_a[-1]
+    alpha = current_loop_alpha(500.0, loop.dt)
+    i_ref = 3000 * plant.io.amp_amps_per_count
+    nxt = loop.run(hold([0]), traces=True, reset=False)
+    assert nxt.traces.current_a[0] == i0 + (i_ref - i0) * alpha
