@@ -169,3 +169,12 @@ def test_default_storage_is_study_db_in_the_run_folder(tmp_path):
     from servogym.autotune._session import default_storage_url
 
     assert default_storage_url(tmp_path) == f"sqlite:///{tmp_path.resolve()}/study.db"
+
+
+def test_a_resumed_study_does_not_repeat_its_warm_start(tmp_path):
+    url = f"sqlite:///{tmp_path / 'study.db'}"
+    problem = short_problem()
+    warm = register_values(problem.scenario.default_params())
+    run_study(problem, "random", 1, storage=url, n_workers=1, warm_start=warm)
+    r = run_study(problem, "random", 3, storage=url, n_workers=1, resume=True)
+    assert [t.user_attrs["kind"] for t in r.trials] == ["warm_start", "sample", "sample"]

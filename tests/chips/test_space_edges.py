@@ -102,3 +102,16 @@ def test_log_register_with_a_low_above_one():
     assert spec.from_unit(0.0) == 100 and spec.from_unit(-1.0) == 10
     assert spec.to_unit(100) == pytest.approx(0.0, abs=1e-12)
     assert spec.to_unit(10) == -1.0
+
+
+def test_param_specs_are_frozen_and_unknown_registers_get_three_suggestions():
+    import dataclasses
+
+    from servogym.chips import ParameterError
+    from servogym.chips._space import ParameterSpace
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        FIVE.high = 5
+    space = ParameterSpace("M", [ParamSpec(n, 0, 1, 0, "u1") for n in ("ka", "kb", "kc", "kd")])
+    with pytest.raises(ParameterError, match=r"Did you mean k., k., k.\?$"):
+        space["k"]

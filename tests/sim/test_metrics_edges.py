@@ -309,3 +309,11 @@ def test_amplifier_current_carries_over_after_a_divergence():
     i_ref = 3000 * plant.io.amp_amps_per_count
     nxt = loop.run(hold([0]), traces=True, reset=False)
     assert nxt.traces.current_a[0] == i0 + (i_ref - i0) * alpha
+
+
+def test_metrics_without_a_move_always_inside_settle_at_once():
+    # No move, |e| <= band on every tick: settled from tick 0, settling time 0; one tick too.
+    m = metrics_of([0, 0, 0], [1, 0, -1], [0] * 3, move_end=-1, target=0, direction=0)
+    assert m["settled"] == 1.0 and m["settling_time"] == 0.0
+    m = metrics_of([0], [0], [0], move_end=-1, target=0, direction=0)
+    assert m["settled"] == 1.0 and m["settling_time"] == 0.0
