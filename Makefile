@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench docs clean
+.PHONY: demo test lint bench docs mutation clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -36,6 +36,17 @@ bench: $(STAMP)
 docs: $(STAMP)
 	$(BIN)/mkdocs build --strict --quiet
 	@echo "wrote site/index.html"
+
+# Mutation testing of the spec-bearing modules (docs/testing.md). Slow (hours for every
+# mutant), resumable, not part of `make test`. Pass options through MUTATION, e.g.
+#   make mutation MUTATION="pmd-filter sim-metrics --max-mutants 60"
+MUTATION ?= --max-mutants 60
+$(VENV)/.mutation-installed: $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[test,mutation]'
+	touch $@
+
+mutation: $(VENV)/.mutation-installed
+	$(BIN)/python experiments/mutation.py $(MUTATION)
 
 clean:
 	rm -rf $(VENV) runs site .pytest_cache
