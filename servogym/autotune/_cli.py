@@ -213,7 +213,8 @@ def tune_command(
             try:
                 open_storage(storage)
             except TuneError as exc:
-                fail(f"--storage {storage!r}: {exc}")
+                detail = str(exc).split("': ", 1)[-1]
+                fail(f"--storage {storage!r} cannot be opened as a study: {detail}")
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
         fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
         return

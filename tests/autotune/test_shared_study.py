@@ -121,5 +121,6 @@ def test_the_cli_reports_a_bad_storage_in_one_line(tmp_path):
     )  # fmt: skip
     assert out.returncode == 2
     lines = [line for line in (out.stdout + out.stderr).splitlines() if line.strip()]
-    assert lines == ["error: cannot open the study storage 'nosuchdb://x': "
-                     + lines[0].split("': ", 1)[1]]  # fmt: skip
+    assert lines == ["error: --storage 'nosuchdb://x' cannot be opened as a study: "
+                     + lines[0].split(": ", 2)[2]]  # fmt: skip
+    assert "nosuchdb" in lines[0].split(": ", 2)[2]  # the driver's reason
