@@ -245,7 +245,10 @@ def test_every_produced_set_is_legal(design, model, ix08, ix09, a):
 CASES = [
     ("TurboPMAC2", "vendor-step", 30, {}),
     pytest.param(
-        "TurboPMAC2", "relay", 20, {},
+        "TurboPMAC2",
+        "relay",
+        20,
+        {},
         # Known limit since the loop latency (issue 13): the relay oscillation is set by
         # PMAC-A14's phase-edge latency (427 Hz), and the rule's best safe set costs 24.7.
         marks=pytest.mark.xfail(strict=True, reason="relay on PMAC with latency: cost 24.7"),
