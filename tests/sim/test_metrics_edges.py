@@ -175,7 +175,10 @@ def test_amplifier_saturates_on_both_sides_with_a_hand_built_axis(bias):
     expected = max(-peak, min(peak, bias * 2 * peak / 32768))
     assert abs(expected) == peak or expected == 0.48828125 * peak
     assert np.all(r.traces.command == bias)
-    assert np.all(r.traces.current_a == expected)
+    # PMD-A13: the command reaches the amplifier one axis slot (here the whole period) after
+    # its sample, so tick 0 still holds the reset's zero current.
+    assert r.traces.current_a[0] == 0.0
+    assert np.all(r.traces.current_a[1:] == expected)
 
 
 def test_episode_results_are_frozen():
@@ -238,14 +241,12 @@ def test_a_non_finite_state_ends_the_episode_on_its_tick():
     assert r.traces.current_a[0] == first.traces.current_a[-1]
 
 
-def test_current_loop_alpha_by_hand():
-    # alpha = 1 - exp(-2 pi bw dt): bw = 1000 Hz, dt = 1e-4 s: 1 - exp(-0.6283185) = 0.4665.
-    from servogym.plants import amplifier_alpha
-    from servogym.sim._runner import current_loop_alpha
+def test_current_loop_time_constant_by_hand():
+    # tau = 1 / (2 pi bw): bw = 1000 Hz gives 159.15 us; 0 Hz is an ideal loop (tau 0).
+    from servogym.sim._runner import current_loop_tau
 
-    assert current_loop_alpha(1000.0, 1e-4) == pytest.approx(0.46651, abs=1e-5)
-    assert current_loop_alpha(2000.0, 154e-6) == amplifier_alpha(2000.0, 154e-6)
-    assert current_loop_alpha(0.0, 1e-4) == 1.0
+    assert current_loop_tau(1000.0) == pytest.approx(1.5915494e-4, rel=1e-7)
+    assert current_loop_tau(0.0) == 0.0
 
 
 def test_runner_without_a_move_measures_the_whole_episode():
@@ -293,10 +294,14 @@ def test_travel_bounds_at_equality(side):
 
 
 def test_amplifier_current_carries_over_after_a_divergence():
-    # A lagging current loop (alpha < 1) and a constant command: the current after the
-    # divergent episode's last tick is where the next episode (reset=False) starts:
-    # i_1 = i_0 + (i_ref - i_0) alpha.
-    from servogym.sim._runner import current_loop_alpha
+    # A lagging current loop (tau = 1/(2 pi 500 Hz)) and a constant command: the current and
+    # the reference in effect when the divergent episode stops are where the next episode
+    # (reset=False) starts. With PMD-A13 (latency = the whole period here) the command of
+    # tick k acts during tick k+1; its mean current over a tick from i0 towards r is
+    # r + (i0 - r) * tau / T * (1 - exp(-T / tau)).
+    import math
+
+    from servogym.sim._runner import current_loop_tau
 
     family = get_plant("rotary")
     plant = family.build({**family.nominal(), "current_bandwidth_hz": 500.0})
@@ -304,11 +309,14 @@ def test_amplifier_current_carries_over_after_a_divergence():
     loop = ServoLoop(plant, params, max_error_counts=10)
     first = loop.run(hold([0, 0, 0, -100, -100]), traces=True)
     assert first.metrics.divergence_reason == "error_bound" and first.metrics.n_ticks == 4
-    i0 = first.traces.current_a[-1]
-    alpha = current_loop_alpha(500.0, loop.dt)
-    i_ref = 3000 * plant.io.amp_amps_per_count
+    tau, dt = current_loop_tau(500.0), loop.dt
+    r = 3000 * plant.io.amp_amps_per_count
+    # the current at the start of tick 3 (where the episode stopped): three ticks of the
+    # command's current from 0, the first of them still at the old (zero) reference
+    i0 = r * (1 - math.exp(-2 * dt / tau))
     nxt = loop.run(hold([0]), traces=True, reset=False)
-    assert nxt.traces.current_a[0] == i0 + (i_ref - i0) * alpha
+    mean = r + (i0 - r) * tau / dt * (1 - math.exp(-dt / tau))
+    assert nxt.traces.current_a[0] == pytest.approx(mean, rel=1e-12)
 
 
 def test_metrics_without_a_move_always_inside_settle_at_once():
