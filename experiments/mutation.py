@@ -153,7 +153,7 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
     ),
     "sim-loop": (
         ["servogym/sim/_loop.py", "servogym/sim/_runner.py"],
-        ["tests/sim/test_runner.py", "tests/sim/test_metrics_edges.py"],
+        ["tests/sim/test_runner.py", "tests/sim/test_metrics_edges.py", "tests/sim/test_inputs.py"],
     ),
     "sim-scenario": (["servogym/sim/_scenario.py"], ["tests/sim/test_scenario.py"]),
     "autotune-session": (

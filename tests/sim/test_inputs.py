@@ -89,3 +89,12 @@ def test_the_plants_amplifier_recurrence_is_the_exact_current_at_sample_instants
         exact = current_at.py_func(T, i, r, r, 0.0, tau)
         i = amplifier_current(command, i, io, T)
         assert i == pytest.approx(exact, rel=1e-13, abs=1e-15)
+
+
+def test_any_positive_bandwidth_is_a_lag():
+    from servogym.sim._runner import current_loop_tau
+
+    # 0.5 Hz is slow but real: tau = 1 / (2 pi 0.5) s; only 0 (or less) is the ideal loop
+    assert current_loop_tau(0.5) == pytest.approx(1 / math.pi)
+    assert current_loop_tau(1.0) == pytest.approx(1 / (2 * math.pi))
+    assert current_loop_tau(-1.0) == 0.0
