@@ -411,7 +411,7 @@ class PlantFamily(abc.ABC):
 
         Args:
             values: Some or all parameters (missing ones nominal); see :meth:`validate`.
-            timestep_s: Physics timestep in seconds, ``1e-6 <= timestep_s <= 1e-3``.
+            timestep_s: Physics timestep in seconds, ``1e-8 <= timestep_s <= 1e-3``.
 
         Returns:
             The compiled plant, reset to its start position.
@@ -694,7 +694,7 @@ class Plant:
         Does not reset the plant.
 
         Args:
-            dt_s: Timestep in seconds, ``1e-6 <= dt_s <= 1e-3``.
+            dt_s: Timestep in seconds, ``1e-8 <= dt_s <= 1e-3``.
         """
         dt_s = _check_timestep(dt_s)
         self.model.opt.timestep = dt_s

@@ -39,7 +39,7 @@ class Traces:
         actual: Encoder position the chip read (counts).
         error: Position error the chip saw, ``wrap32(commanded - actual)`` (counts).
         command: Motor command (signed 16-bit counts, 32768 = 100 %).
-        current_a: Amplifier output current (A).
+        current_a: Mean amplifier output current over each tick (A).
     """
 
     time_s: np.ndarray
