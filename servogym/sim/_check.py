@@ -28,7 +28,7 @@ from typing import Any
 
 from servogym.chips._space import ParameterError
 from servogym.plants import get_plant
-from servogym.sim._margins import Margins, bode_plot, frequency_grid, linearize, margins, open_loop
+from servogym.sim._margins import Margins, bode_plot, margins, open_loop, plant_response
 from servogym.sim._runner import REFERENCE_SUBSTEPS
 from servogym.sim._scenario import Evaluator, Scenario
 
@@ -211,19 +211,21 @@ def _run_case(scenario: Scenario, params: Any, case: _Case, substeps: int) -> Ca
     )
 
 
-def loop_margins(scenario: Scenario, params: Any, loop_latency: str | None = None):
-    """``(freqs_hz, L, Margins)`` of ``params`` on the scenario's nominal plant."""
+def loop_margins(scenario: Scenario, params: Any, latencies: Sequence[str] | None = None):
+    """``{loop_latency: (freqs_hz, L, Margins)}`` of ``params`` on the scenario's nominal
+    plant, for each of ``latencies`` (``None``: the scenario's own); one plant build."""
     chip = scenario.chip
     asm = scenario.assumptions or chip.default_assumptions()
-    if loop_latency is not None:
-        asm = dataclasses.replace(asm, loop_latency=loop_latency)
     family = get_plant(scenario.plant)
     plant = family.build({**family.nominal(), **scenario.plant_values})
     dt = chip.sample_time_s(params)
-    linear = linearize(plant, dt, chip.loop_latency_s(params, asm))
-    freqs = frequency_grid(dt)
-    loop = open_loop(chip, params, asm, linear, freqs)
-    return freqs, loop, margins(freqs, loop)
+    out = {}
+    for choice in latencies or [asm.loop_latency]:
+        a = dataclasses.replace(asm, loop_latency=choice)
+        freqs, response = plant_response(plant, dt, chip.loop_latency_s(params, a))
+        loop = open_loop(chip, params, a, freqs, response)
+        out[choice] = (freqs, loop, margins(freqs, loop))
+    return out
 
 
 def check_params(
@@ -257,12 +259,9 @@ def check_params(
         results = list(
             pool.map(lambda c: _run_case(scenario, params, c, limits.reference_substeps), cases)
         )
-    by_latency = {}
-    for choice in type(asm).CHOICES["loop_latency"]:
-        freqs, loop, m = loop_margins(scenario, params, choice)
-        by_latency[choice] = m
-        if choice == asm.loop_latency:
-            main = (freqs, loop, m)
+    computed = loop_margins(scenario, params, type(asm).CHOICES["loop_latency"])
+    by_latency = {choice: m for choice, (_, _, m) in computed.items()}
+    main = computed[asm.loop_latency]
     failures = []
     for r in results:
         if r.diverged:
@@ -296,7 +295,7 @@ def check_params(
 def write_bode(path: Any, scenario: Scenario, params: Any, limits: CheckLimits, computed=None):
     """Write the Bode plot of the open loop of ``params`` on the nominal plant (PNG)."""
     asm = scenario.assumptions or scenario.chip.default_assumptions()
-    freqs, loop, m = computed or loop_margins(scenario, params)
+    freqs, loop, m = computed or loop_margins(scenario, params)[asm.loop_latency]
     title = f"{scenario.chip_model} on {scenario.plant}: open loop (latency {asm.loop_latency})"
     bode_plot(path, freqs, loop, m, title,
               (limits.min_gain_margin_db, limits.min_phase_margin_deg))  # fmt: skip

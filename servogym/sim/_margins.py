@@ -223,12 +223,19 @@ def continuous_phase(loop: np.ndarray) -> np.ndarray:
     return phase - 2 * np.pi * math.ceil(phase[0] / (2 * np.pi))
 
 
+def plant_response(plant: Any, dt: float, latency: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(freqs_hz, P)``: the plant's response on :func:`frequency_grid` for period ``dt``."""
+    freqs = frequency_grid(dt)
+    z = np.exp(2j * np.pi * freqs * dt)
+    return freqs, linearize(plant, dt, latency).response(z)
+
+
 def open_loop(
-    family: Any, params: Any, assumptions: Any, linear: LinearPlant, freqs_hz: np.ndarray
+    family: Any, params: Any, assumptions: Any, freqs_hz: np.ndarray, plant: np.ndarray
 ) -> np.ndarray:
-    """``L(e^{jwT}) = C(z) P(z)`` at ``freqs_hz``."""
-    z = np.exp(2j * np.pi * freqs_hz * linear.dt)
-    return family.filter_response(params, assumptions, z) * linear.response(z)
+    """``L(e^{jwT}) = C(z) P(z)`` at ``freqs_hz``, ``plant`` from :func:`plant_response`."""
+    z = np.exp(2j * np.pi * freqs_hz * family.sample_time_s(params))
+    return family.filter_response(params, assumptions, z) * plant
 
 
 def bode_plot(path: Any, freqs_hz: np.ndarray, loop: np.ndarray, m: Margins, title: str,

@@ -17,7 +17,7 @@ import numpy as np
 
 from servogym.chips._family import Move, get_chip
 from servogym.plants import get_plant
-from servogym.sim._margins import Margins, frequency_grid, linearize, margins
+from servogym.sim._margins import Margins, margins, open_loop, plant_response
 from servogym.sim._metrics import EpisodeMetrics
 from servogym.sim._runner import EpisodeResult, ServoLoop
 
@@ -252,11 +252,9 @@ class Evaluator:
         latency = chip.loop_latency_s(params, asm)
         key = (tuple(sorted(self.plant.values.items())), dt, latency)
         if key not in self._plant_responses:
-            freqs = frequency_grid(dt)
-            z = np.exp(2j * np.pi * freqs * dt)
-            self._plant_responses[key] = (freqs, z, linearize(self.plant, dt, latency).response(z))
-        freqs, z, plant_response = self._plant_responses[key]
-        return margins(freqs, chip.filter_response(params, asm, z) * plant_response)
+            self._plant_responses[key] = plant_response(self.plant, dt, latency)
+        freqs, plant = self._plant_responses[key]
+        return margins(freqs, open_loop(chip, params, asm, freqs, plant))
 
     def profiles(self, params: Any) -> list:
         """The chip profiles of the scenario's moves at this plant's encoder resolution."""
