@@ -111,7 +111,9 @@ def run_study(
             shared=isinstance(tuner_obj, OptunaTuner),
         )
         with session:
-            if session.remaining > 0:
+            # Not ``remaining``: a queued warm start (or a re-queued trial) already counts
+            # toward the budget but still has to be evaluated.
+            if session.n_done < session.budget:
                 tuner_obj.run(session)
         trials = session.trials()
     best, feasible = best_trial(trials, problem.multi_objective)

@@ -176,8 +176,20 @@ def test_a_resumed_study_does_not_repeat_its_warm_start(tmp_path):
     url = f"sqlite:///{tmp_path / 'study.db'}"
     problem = short_problem()
     warm = register_values(problem.scenario.default_params())
-    # budget 2, not 1: a study of budget 1 with a warm start ends with no scored trial since
-    # the shared-study session (issue 12; reported, not fixed here)
-    run_study(problem, "random", 2, storage=url, n_workers=1, warm_start=warm)
+    run_study(problem, "random", 1, storage=url, n_workers=1, warm_start=warm)
     r = run_study(problem, "random", 3, storage=url, n_workers=1, resume=True)
     assert [t.user_attrs["kind"] for t in r.trials] == ["warm_start", "sample", "sample"]
+
+
+@pytest.mark.parametrize("storage", ["memory", "journal"])
+def test_a_budget_of_one_with_a_warm_start_scores_the_warm_start(tmp_path, storage):
+    # The queued warm start counts toward the budget before it is evaluated: a budget of 1
+    # leaves nothing "remaining", yet the warm start itself must still be run and scored.
+    problem = short_problem()
+    warm = register_values(problem.scenario.default_params())
+    url = None if storage == "memory" else str(tmp_path / "study.journal")
+    r = run_study(problem, "tpe", 1, storage=url, n_workers=1, warm_start=warm)
+    assert [(t.state.name, t.user_attrs["kind"]) for t in r.trials] == [
+        ("COMPLETE", "warm_start")
+    ]
+    assert r.best_values == warm
