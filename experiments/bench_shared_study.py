@@ -6,13 +6,17 @@ with 1 thread each (`servogym tune --storage FILE --study-name NAME` started N t
 1 process with N threads. Throughput is evaluations per second between the first trial's
 start and the last trial's end in the study (start-up of each process excluded).
 
-    .venv/bin/python experiments/bench_shared_study.py [--budget 300] [--workers 2]
+    .venv/bin/python experiments/bench_shared_study.py [--budget 300] [--workers 2] [--repeat 3]
+
+Each configuration runs `--repeat` times, interleaved; the median rate is printed, with the
+ratio to 1 process x 1 thread measured in the same run.
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -53,16 +57,28 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--budget", type=int, default=300)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
     n = args.workers
-    print(f"budget {args.budget}, TPE, MC2100 vertical-axis, one journal file")
-    for label, processes, threads in [
+    configs = [
         ("1 process x 1 thread", 1, 1),
         (f"{n} processes x 1 thread", n, 1),
         (f"1 process x {n} threads", 1, n),
-    ]:
-        rate, count = run(args.budget, processes, threads)
-        print(f"{label:26} {rate:7.1f} evaluations/s ({count} trials)")
+    ]
+    rates: dict[str, list[float]] = {label: [] for label, _, _ in configs}
+    counts: dict[str, set[int]] = {label: set() for label, _, _ in configs}
+    for _ in range(args.repeat):
+        for label, processes, threads in configs:
+            rate, count = run(args.budget, processes, threads)
+            rates[label].append(rate)
+            counts[label].add(count)
+    print(f"budget {args.budget}, TPE, MC2100 vertical-axis, one journal file, "
+          f"median of {args.repeat}")  # fmt: skip
+    base = statistics.median(rates[configs[0][0]])
+    for label, _, _ in configs:
+        med = statistics.median(rates[label])
+        print(f"{label:26} {med:7.1f} evaluations/s  x{med / base:4.2f}  "
+              f"(trials per study: {sorted(counts[label])})")  # fmt: skip
 
 
 if __name__ == "__main__":

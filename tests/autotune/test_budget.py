@@ -189,7 +189,5 @@ def test_a_budget_of_one_with_a_warm_start_scores_the_warm_start(tmp_path, stora
     warm = register_values(problem.scenario.default_params())
     url = None if storage == "memory" else str(tmp_path / "study.journal")
     r = run_study(problem, "tpe", 1, storage=url, n_workers=1, warm_start=warm)
-    assert [(t.state.name, t.user_attrs["kind"]) for t in r.trials] == [
-        ("COMPLETE", "warm_start")
-    ]
+    assert [(t.state.name, t.user_attrs["kind"]) for t in r.trials] == [("COMPLETE", "warm_start")]
     assert r.best_values == warm

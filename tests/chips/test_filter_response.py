@@ -452,3 +452,22 @@ def test_shape_dtype_and_bad_input(model):
         family.filter_response(params, other.default_assumptions(), z)
     with pytest.raises(TypeError, match=f"params for a {family.name} chip must be"):
         family.filter_response(other.make_params(next(iter(other.models))), None, z)
+
+
+@pytest.mark.parametrize("mode", ["sample_difference", "cycle_difference"])
+def test_pmd_derivative_hold_closed_form_is_the_sum_of_its_phases(mode):
+    # The hold is (1 + z^-1 + ... + z^-(d-1)) / d, computed in closed form as
+    # (1 - z^-d) / (d (1 - z^-1)); here against the term-by-term sum at large d (where the
+    # measured test above cannot go) and its limit 1 at z = 1 (so D(1) = 0 in both modes).
+    from servogym.chips.pmd._response import derivative_response
+
+    f = np.geomspace(1e-4, 0.4999, 200)
+    zi = np.exp(-2j * np.pi * f)
+    for d in (1, 2, 7, 64, 1000):
+        hold = sum(zi**k for k in range(d)) / d
+        diff = 1 - zi**d if mode == "sample_difference" else 1 - zi
+        got = derivative_response(d, mode, zi)
+        assert np.allclose(got, hold * diff, rtol=1e-9, atol=1e-12), d
+    assert derivative_response(5, mode, np.array([1.0 + 0j]))[0] == 0
+    # z = -1 (Nyquist), d = 4: the hold's four phases cancel: D = 0 in both modes.
+    assert abs(derivative_response(4, mode, np.array([-1.0 + 0j]))[0]) < 1e-15

@@ -28,8 +28,13 @@ def derivative_response(d: int, mode: str, zi: np.ndarray) -> np.ndarray:
         mode: PMD-A8, ``"sample_difference"`` or ``"cycle_difference"``.
         zi: ``z^-1`` (any shape).
     """
-    hold = sum(zi**k for k in range(d)) / d
-    diff = 1 - zi**d if mode == "sample_difference" else 1 - zi
+    zi = np.asarray(zi, dtype=complex)
+    zd = zi**d
+    # The hold's geometric sum in closed form, (1 - z^-d) / (d (1 - z^-1)); its limit, 1,
+    # at z = 1. (A term-by-term sum cost d array powers: 50 ms per call at d ~ 1000.)
+    one = zi == 1
+    hold = np.where(one, 1.0, (1 - zd) / (d * np.where(one, 2.0, 1 - zi)))
+    diff = 1 - zd if mode == "sample_difference" else 1 - zi
     return hold * diff
 
 
