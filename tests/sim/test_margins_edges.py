@@ -1,0 +1,348 @@
+"""Hand-computed cases for the margins, the held input, the check and the agreement rule
+(issue 14: the paths the defaults hide, comparisons at their exact boundaries).
+
+Every expected number is derived in the comments from docs/simulation.md and the modules'
+docstrings, not read off the code.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import mujoco
+import numpy as np
+import pytest
+
+from servogym.chips._space import ParameterError
+from servogym.sim import CheckLimits
+from servogym.sim._inputs import current_at, piece_moments
+from servogym.sim._margins import (
+    LinearPlant,
+    continuous_model,
+    continuous_phase,
+    frequency_grid,
+    linearize,
+    margins,
+)
+
+# --- the linearised plant ----------------------------------------------------------------
+
+MASS, GEAR, DAMPING = 2.0, 3.0, 0.8
+"""A slide of 2 kg driven through gear 3 (force = 3 x ctrl), viscous damping 0.8 N s/m."""
+KT, KA, KC = 0.5, 0.01, 1e6
+"""Torque constant (N m/A), amperes per command count, encoder counts per metre."""
+
+
+def slide_plant(damping: float = 0.0, gravity: bool = False, bandwidth_hz: float = 0.0):
+    """A bare MuJoCo slide with the plant interface continuous_model reads (model, io)."""
+    axis = "0 0 1" if gravity else "1 0 0"
+    xml = f"""
+    <mujoco>
+      <option gravity="0 0 {-9.81 if gravity else 0}"/>
+      <worldbody><body>
+        <joint name="x" type="slide" axis="{axis}" damping="{damping}"/>
+        <inertial pos="0 0 0" mass="{MASS}" diaginertia="1 1 1"/>
+      </body></worldbody>
+      <actuator><motor joint="x" gear="{GEAR}"/></actuator>
+    </mujoco>"""
+    io = SimpleNamespace(ctrl_index=0, qpos_adr=0, torque_constant_nm_per_a=KT,
+                         amp_amps_per_count=KA, counts_per_unit=KC,
+                         current_bandwidth_hz=bandwidth_hz)  # fmt: skip
+    return SimpleNamespace(model=mujoco.MjModel.from_xml_string(xml), io=io)
+
+
+def test_continuous_model_of_a_damped_slide_with_a_current_lag():
+    # m x'' = -b x' + GEAR Kt i, tau i' = r - i with tau = 1 / (2 pi 500 Hz); y = KC x.
+    # State (x, v, i): A = [[0, 1, 0], [0, -b/m, GEAR Kt/m], [0, 0, -1/tau]], B = (0, 0, 1/tau).
+    a, b, c, d = continuous_model(slide_plant(DAMPING, bandwidth_hz=500.0))
+    tau = 1 / (2 * math.pi * 500.0)
+    want = [[0, 1, 0], [0, -DAMPING / MASS, GEAR * KT / MASS], [0, 0, -1 / tau]]
+    np.testing.assert_allclose(a, want, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(b, [0, 0, 1 / tau], rtol=1e-12)
+    np.testing.assert_array_equal(c, [KC, 0, 0])
+    np.testing.assert_array_equal(d, [0, 0, 0])
+    # An ideal current loop (bandwidth 0): no current state, the input acts on v directly.
+    a, b, c, d = continuous_model(slide_plant(DAMPING))
+    np.testing.assert_allclose(a, [[0, 1], [0, -DAMPING / MASS]], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(b, [0, GEAR * KT / MASS], rtol=1e-6)
+
+
+def test_pure_inertia_response_with_and_without_latency():
+    """Encoder counts per command count of x'' = k u, k = GEAR Kt KA / m, held per tick.
+
+    Over a tick of length T, u_old acts on [0, L) and u_new on [L, T):
+    v gains k (L u_old + (T - L) u_new), x gains v T + k ((L T - L^2/2) u_old + (T - L)^2/2 u_new).
+    So Phi = [[1, T], [0, 1]], G_new = k ((T-L)^2/2, T-L), G_old = k (L T - L^2/2, L) and
+    P(z) = KC / (z-1)^2 [(z-1)(G_new,x + G_old,x / z) + T (G_new,v + G_old,v / z)]:
+    L = 0:     KC k T^2/2 (z + 1) / (z - 1)^2 (the classical hold of a double integrator),
+    L = T/2:   KC k T^2/8 (z^2 + 6 z + 1) / (z (z - 1)^2),
+    L = T:     KC k T^2/2 (z + 1) / (z (z - 1)^2) (one whole tick of delay).
+    """
+    plant = slide_plant()
+    k = GEAR * KT * KA / MASS
+    dt = 1e-3
+    z = np.exp(2j * np.pi * np.array([3.0, 40.0, 250.0, 499.0]) * dt)
+    cases = {
+        0.0: KC * k * dt**2 / 2 * (z + 1) / (z - 1) ** 2,
+        dt / 2: KC * k * dt**2 / 8 * (z**2 + 6 * z + 1) / (z * (z - 1) ** 2),
+        dt: KC * k * dt**2 / 2 * (z + 1) / (z * (z - 1) ** 2),
+    }
+    for latency, want in cases.items():
+        lin = linearize(plant, dt, latency)
+        np.testing.assert_allclose(lin.response(z), want, rtol=1e-6)
+        assert lin.dt == dt and lin.latency == latency
+    lin = linearize(plant, dt, dt / 4)
+    # L = T/4: G_new = k (9 T^2/32, 3T/4), G_old = k (7 T^2/32, T/4).
+    np.testing.assert_allclose(lin.g_new, k * np.array([9 * dt**2 / 32, 0.75 * dt]), rtol=1e-6)
+    np.testing.assert_allclose(lin.g_old, k * np.array([7 * dt**2 / 32, 0.25 * dt]), rtol=1e-6)
+    np.testing.assert_allclose(lin.phi, [[1, dt], [0, 1]], rtol=1e-6, atol=1e-12)
+
+
+def test_drift_is_gravity_over_one_tick():
+    # A vertical slide at rest, no command: in a tick x falls g T^2/2 and v becomes -g T.
+    dt = 1e-3
+    lin = linearize(slide_plant(gravity=True), dt, 0.3 * dt)
+    np.testing.assert_allclose(lin.drift, [-9.81 * dt**2 / 2, -9.81 * dt], rtol=1e-9)
+
+
+def test_response_of_a_first_order_plant_by_hand():
+    # x[k+1] = 0.5 x + 2 u[k] + 3 u[k-1], y = 4 x: P(z) = 4 (2 + 3 z^-1) / (z - 0.5).
+    lin = LinearPlant(phi=np.array([[0.5]]), g_new=np.array([2.0]), g_old=np.array([3.0]),
+                      drift=np.zeros(1), c=np.array([4.0]), dt=1e-3, latency=0.0)  # fmt: skip
+    z = np.array([1.0, -1.0, 1j, 2.0 + 1j])
+    np.testing.assert_allclose(lin.response(z), 4 * (2 + 3 / z) / (z - 0.5), rtol=1e-14)
+    # at z = 1: 4 * 5 / 0.5 = 40; at z = -1: 4 * (2 - 3) / (-1.5) = 8/3.
+    assert lin.response(np.array([1.0]))[0] == pytest.approx(40.0)
+    assert lin.response(np.array([-1.0]))[0] == pytest.approx(8 / 3)
+
+
+def test_frequency_grid_spans_the_documented_range():
+    # From 1e-4 of the sample rate to 0.999 of Nyquist, logarithmically.
+    f = frequency_grid(1e-3, 50)
+    assert f.size == 50
+    assert f[0] == pytest.approx(0.1, rel=1e-12) and f[-1] == pytest.approx(499.5, rel=1e-12)
+    ratios = f[1:] / f[:-1]
+    np.testing.assert_allclose(ratios, ratios[0], rtol=1e-9)
+
+
+# --- the margins ------------------------------------------------------------------------------
+
+
+def test_bandwidth_of_an_integrator_loop():
+    """L = wc / (jw): the closed loop wc / (jw + wc) falls to 1/sqrt(2) of its low-frequency
+    value (|T(f0)| = 1 / sqrt(1 + (f0/100)^2), f0 = 1 Hz) just past fc = 100 Hz: the
+    bandwidth is the first grid point past fc (the point before it lies below 100 Hz)."""
+    f = frequency_grid(1e-4, 2000)
+    loop = 100.0 / (1j * f)
+    m = margins(f, loop)
+    k = int(np.flatnonzero(f == m.bandwidth_hz)[0])
+    assert f[k - 1] < 100.0 < f[k]
+    assert m.bandwidth_hz == pytest.approx(100.0, rel=0.005)
+    # No phase crossover (-90 degrees throughout): unbounded gain margin; PM 90 at 100 Hz.
+    assert math.isinf(m.gain_margin_db) and math.isnan(m.phase_crossover_hz)
+    assert m.phase_margin_deg == pytest.approx(90.0)
+    assert m.gain_crossover_hz == pytest.approx(100.0, rel=1e-3)
+
+
+def test_a_closed_loop_that_never_drops_has_no_bandwidth():
+    # L = 10 everywhere: |L / (1 + L)| = 10/11 at every frequency: no -3 dB point.
+    f = frequency_grid(1e-4, 50)
+    m = margins(f, np.full(f.size, 10.0 + 0j))
+    assert math.isnan(m.bandwidth_hz)
+    assert math.isinf(m.phase_margin_deg) and math.isinf(m.gain_margin_db)
+
+
+@pytest.mark.parametrize(
+    ("re", "gm_db"),
+    [(-0.5, 20 * math.log10(2)), (-0.25, 20 * math.log10(4)), (-1.0, math.inf), (-1.5, math.inf)],
+)
+def test_gain_margin_counts_only_crossings_inside_the_unit_circle(re, gm_db):
+    # The loop crosses the negative real axis at re between two grid points (imaginary parts
+    # -1 and +1, the real part constant): the gain margin is -20 log10(-re) where |re| < 1;
+    # at -1 (the critical point) and beyond it the crossing is no margin at all.
+    f = np.array([10.0, 20.0])
+    loop = np.array([re - 0.1j, re + 0.1j])
+    m = margins(f, loop)
+    assert m.gain_margin_db == pytest.approx(gm_db)
+    if math.isfinite(gm_db):
+        assert m.phase_crossover_hz == pytest.approx(15.0)  # im = 0 half way
+    else:
+        assert math.isnan(m.phase_crossover_hz)
+
+
+def test_the_smallest_of_two_gain_margins_is_kept():
+    # Crossings at -0.25 (12.04 dB, 15 Hz) then -0.5 (6.02 dB, 35 Hz): the 6.02 dB one.
+    f = np.array([10.0, 20.0, 30.0, 40.0])
+    loop = np.array([-0.25 - 0.1j, -0.25 + 0.1j, -0.5 + 0.1j, -0.5 - 0.1j])
+    m = margins(f, loop)
+    assert m.gain_margin_db == pytest.approx(20 * math.log10(2))
+    assert m.phase_crossover_hz == pytest.approx(35.0)
+
+
+def test_continuous_phase_starts_in_the_half_open_turn_below_zero():
+    # Phase at the low-frequency end in (-360, 0] degrees: 0 stays 0, -90 stays -90,
+    # +90 (a differentiator) becomes -270, 180 becomes -180; later points follow continuously.
+    for start_deg, want_deg in ((0.0, 0.0), (-90.0, -90.0), (90.0, -270.0), (180.0, -180.0)):
+        loop = np.exp(1j * np.radians([start_deg, start_deg - 60.0, start_deg - 120.0]))
+        got = np.degrees(continuous_phase(loop))
+        np.testing.assert_allclose(got, [want_deg, want_deg - 60.0, want_deg - 120.0], atol=1e-9)
+
+
+# --- the held input ---------------------------------------------------------------------------
+
+
+def test_an_ideal_loop_at_a_full_period_of_latency_ends_the_tick_on_the_new_command():
+    # i(t) = r_new for L <= t <= T (docs/simulation.md): with L = T the tick ends on r_new.
+    T = 1e-4
+    assert current_at.py_func(T, 0.0, 1.0, -2.0, T, 0.0) == -2.0
+    assert current_at(T, 0.0, 1.0, -2.0, T, 0.0) == -2.0
+    assert current_at.py_func(0.5 * T, 0.0, 1.0, -2.0, T, 0.0) == 1.0
+
+
+def test_a_lag_starting_exactly_one_ampere_above_its_level():
+    # i(s) = 0 + 1 * exp(-s / tau) on [0, w], w = tau: moments
+    # int e^{-s/tau} = tau (1 - e^-1), int s e^{-s/tau} = tau^2 (1 - 2 e^-1),
+    # int s^2 e^{-s/tau} = tau^3 (2 - 5 e^-1).
+    tau = 1e-4
+    out = np.zeros(3)
+    piece_moments.py_func(out, 0.0, tau, 0.0, 1.0, tau)
+    e = math.exp(-1)
+    want = [tau * (1 - e), tau**2 * (1 - 2 * e), tau**3 * (2 - 5 * e)]
+    np.testing.assert_allclose(out, want, rtol=1e-12)
+    out = np.zeros(3)
+    piece_moments(out, 0.0, tau, 0.0, 1.0, tau)
+    np.testing.assert_allclose(out, want, rtol=1e-12)
+
+
+# --- the check's limits -----------------------------------------------------------------------
+
+EDGES = [
+    ("min_gain_margin_db", 0.0, 60.0),
+    ("min_phase_margin_deg", 0.0, 90.0),
+    ("load_spread", 0.0, 0.9),
+    ("friction_spread", 0.0, 0.9),
+]
+
+
+@pytest.mark.parametrize(("name", "low", "high"), EDGES)
+def test_check_limits_accept_their_edges_and_refuse_past_them(name, low, high):
+    assert getattr(CheckLimits(**{name: low}), name) == low
+    assert getattr(CheckLimits(**{name: high}), name) == high
+    for bad in (low - 0.01, high + 0.01, "1"):
+        with pytest.raises(ParameterError, match=f"{name} must satisfy {low:g} <= {name} <= "
+                           f"{high:g}; got {name}={bad!r}"):  # fmt: skip
+            CheckLimits(**{name: bad})
+
+
+def test_reference_substeps_between_1_and_1024_and_an_integer():
+    assert CheckLimits(reference_substeps=1).reference_substeps == 1
+    assert CheckLimits(reference_substeps=1024).reference_substeps == 1024
+    for bad in (0, 1025, True, 4.0):
+        with pytest.raises(ParameterError, match=f"got reference_substeps={bad!r}"):
+            CheckLimits(reference_substeps=bad)
+    d = CheckLimits()
+    assert (d.min_gain_margin_db, d.min_phase_margin_deg) == (6.0, 30.0)
+    assert (d.load_spread, d.friction_spread) == (0.2, 0.5)
+
+
+# --- the check: margins at their minimum, extra plants ----------------------------------------
+
+
+def test_margins_exactly_at_their_minimum_pass_and_a_shortfall_is_stated():
+    """A margin equal to its minimum meets it (docs/simulation.md: "below its minimum"
+    fails); a drawn plant instance runs as a case that lists only what differs from the
+    scenario's fixed values."""
+    from servogym.plants import get_plant
+    from servogym.sim import Scenario, check_params
+    from servogym.sim._check import loop_margins
+
+    from .test_check import safe
+
+    scenario, params = safe("6250", "rotary")
+    scenario = Scenario("6250", "rotary", plant_values={"peak_current_a": 10.0},
+                        moves=scenario.moves[:1])  # fmt: skip
+    asm = scenario.chip.default_assumptions()
+    m = loop_margins(scenario, params)[asm.loop_latency][2]
+    assert 6 < m.gain_margin_db < 50 and 30 < m.phase_margin_deg < 80  # 22.9 dB, 64.7 deg
+    draw = {**get_plant("rotary").nominal(), "load_inertia_kgm2": 1e-4}  # a complete instance
+    at_gain = CheckLimits(
+        min_gain_margin_db=m.gain_margin_db,
+        min_phase_margin_deg=m.phase_margin_deg + 1,
+        reference_substeps=4,
+    )
+    report = check_params(params, scenario, at_gain, extra_plants=[draw], workers=1)
+    pm, lim = m.phase_margin_deg, m.phase_margin_deg + 1
+    assert report.failures == (
+        f"phase margin: {pm:.2f} deg < {lim:g} deg ({lim - pm:.2f} deg short)",
+    )
+    assert report.margins == m
+    case = report.cases[-1]
+    assert case.name == "plant draw 1" and case.loop_latency == asm.loop_latency
+    assert "peak_current_a" not in case.plant_changes  # the scenario fixes it already
+    assert case.plant_changes["load_inertia_kgm2"] == 1e-4
+    assert not case.diverged and case.divergence_reason == "none"
+    assert case.to_dict()["divergence_time_s"] is None
+    at_phase = CheckLimits(
+        min_gain_margin_db=m.gain_margin_db + 1,
+        min_phase_margin_deg=m.phase_margin_deg,
+        reference_substeps=4,
+    )
+    report = check_params(params, scenario, at_phase, workers=1)
+    gm, lim = m.gain_margin_db, m.gain_margin_db + 1
+    assert report.failures == (f"gain margin: {gm:.2f} dB < {lim:g} dB ({lim - gm:.2f} dB short)",)
+    assert not report.passed and report.to_dict()["passed"] is False
+
+
+# --- the agreement rule at its thresholds -------------------------------------------------
+
+
+def test_agreement_rule_at_its_exact_thresholds():
+    from servogym.sim._convergence import compare
+
+    from .test_convergence import _evaluation as ev
+
+    # Settling set of cost 0: the cost tolerance is 0.05 * 0 + 0.02 = 0.02, inclusive.
+    zero = ev(0.0, trace=(0, 100, 200))
+    assert compare(ev(0.02, trace=(0, 100, 200)), zero).ok
+    assert not compare(ev(0.0201, trace=(0, 100, 200)), zero).ok
+    # Not settled (a move did not settle): 10 % of 50 = 5, inclusive, either side.
+    osc = ev(50.0, settled=False)
+    assert compare(ev(55.0, settled=False), osc).ok
+    assert compare(ev(45.0, settled=False), osc).ok
+    assert not compare(ev(44.9, settled=False), osc).ok
+    # Only one of the two at the cap (100) is no agreement; both at it is.
+    assert not compare(ev(100.0, settled=False), ev(60.0, settled=False)).ok
+    assert not compare(ev(60.0, settled=False), ev(100.0, settled=False)).ok
+    # Both diverged: the same verdict is all the rule asks, whatever the costs.
+    a = compare(ev(1500.0, diverged=True, settled=False), ev(1100.0, diverged=True, settled=False))
+    assert a.ok and a.why == "" and a.diverged and a.reference_diverged and not a.settled
+
+
+def test_well_damped_means_a_cost_below_ten():
+    from servogym.sim._convergence import compare, settled
+
+    from .test_convergence import _evaluation as ev
+
+    # A settled reference of cost 9.99 is well damped: the trace rule applies (8 counts).
+    assert settled(ev(9.99)) and not settled(ev(10.0))
+    a = compare(ev(9.99, trace=(0, 100, 200)), ev(9.99, trace=(0, 100, 200)))
+    assert a.settled and a.trace_tolerance == 8 and a.max_trace_difference == 0
+    # At cost 10 it is not: only the cost counts (10 %), a trace 300 counts off agrees.
+    a = compare(ev(10.9, trace=(0, 400, 200)), ev(10.0, trace=(0, 100, 200)))
+    assert a.ok and not a.settled and a.trace_tolerance == 0 and a.max_trace_difference == 300
+    assert not settled(ev(5.0, diverged=True)) and not settled(ev(5.0, settled=False))
+
+
+def test_traces_compared_over_their_common_ticks():
+    from servogym.sim._convergence import compare
+
+    from .test_convergence import _evaluation as ev
+
+    # The default run is one tick longer: only the three common ticks count (1 count apart).
+    a = compare(ev(1.0, trace=(0, 101, 200, 9999)), ev(1.0, trace=(0, 100, 200)))
+    assert a.ok and a.max_trace_difference == 1
+    assert a.cost == 1.0 and a.reference_cost == 1.0
+    # 0.5 % of a 3000-count peak error: 15 counts, more than 8.
+    a = compare(ev(1.0, trace=(0, 100, 200)), ev(1.0, trace=(0, 100, 215), fe=3000.0))
+    assert a.ok and a.trace_tolerance == 15 and a.max_trace_difference == 15
