@@ -346,3 +346,62 @@ def test_traces_compared_over_their_common_ticks():
     # 0.5 % of a 3000-count peak error: 15 counts, more than 8.
     a = compare(ev(1.0, trace=(0, 100, 200)), ev(1.0, trace=(0, 100, 215), fe=3000.0))
     assert a.ok and a.trace_tolerance == 15 and a.max_trace_difference == 15
+
+
+def test_stress_case_names_state_the_spreads_in_percent():
+    # Spreads of 0.9: "load -90%", "load +90%", "friction -90%", "friction +90%"; the load
+    # of the rotary plant (9e-5 kg m^2) times 0.1 and 1.9, each kept inside its legal range.
+    from servogym.plants import get_plant
+    from servogym.sim import Scenario
+    from servogym.sim._check import stress_cases
+
+    family = get_plant("rotary")
+    limits = CheckLimits(load_spread=0.9, friction_spread=0.9)
+    cases = {c.name: c for c in stress_cases(Scenario("6250", "rotary"), limits)}
+    assert [n for n in cases if n.startswith(("load", "friction"))] == [
+        "load -90%", "load +90%", "friction -90%", "friction +90%"]  # fmt: skip
+    p = family.param("load_inertia_kgm2")
+    for name, factor in (("load -90%", 0.1), ("load +90%", 1.9)):
+        want = min(max(9e-5 * factor, p.low), p.high)
+        assert cases[name].plant_changes == {"load_inertia_kgm2": pytest.approx(want)}
+
+
+def test_period_settings_by_hand():
+    # PMD: one slot per axis, n_axes x minimum (docs/chips/pmd.md, PMD-A13): the 4-axis
+    # Navigator 4 x 154 = 616 us, the 1-axis MC3110 154 us, the 4-axis Magellan 4 x 52 = 208 us.
+    from servogym.sim._convergence import period_settings
+
+    assert period_settings("MC2100")["slowest"] == {"sample_time_us": 616}
+    assert period_settings("MC3110")["slowest"] == {"sample_time_us": 154}
+    assert period_settings("MC58000")["slowest"] == {"sample_time_us": 208}
+    assert period_settings("TurboPMAC2") == {"default": {}, "slowest": {"servo_cycle_extension": 1}}
+    assert period_settings("6K") == {"default": {}, "slowest": {"ssfr": 1}}
+
+
+def test_check_cases_run_the_nominal_plant_at_the_reference_and_time_a_divergence():
+    """Each case runs without the scenario's plant draws (randomise off), RK4 at the
+    limits' substeps; a divergence is timed from the start of the moves, within them."""
+    import dataclasses
+
+    from servogym.sim import Scenario, check_params
+    from servogym.sim._scenario import Evaluator
+
+    base = Scenario("MC2100", "rotary")
+    scenario = Scenario("MC2100", "rotary", randomise=True, moves=base.moves[:1])
+    params = scenario.params(dict(kp=32767, kd=0, ki=0, kout=32767, derivative_time=1,
+                                  position_error_limit=2000))  # fmt: skip
+    limits = CheckLimits(reference_substeps=4)
+    report = check_params(params, scenario, limits, workers=1)
+    fixed = dataclasses.replace(scenario, randomise=False, integrator="rk4", substeps=4)
+    ev = Evaluator(fixed).evaluate(params)
+    ref = report.cases[0]
+    assert ref.name == "reference" and ref.cost == ev.cost and ref.diverged == ev.diverged
+    assert ref.max_following_error == ev.max_following_error
+    diverged = [c for c in report.cases if c.diverged]
+    assert diverged
+    move = scenario.moves[0]
+    # the move: 2 pi rad, at most 60 rad/s: under 0.2 s with its ramps, plus 0.08 s to settle
+    duration = abs(move.distance) / move.max_velocity + move.max_velocity / move.max_acceleration
+    for c in diverged:
+        assert 0 < c.divergence_time_s < duration + move.settle_s + 0.1
+        assert c.to_dict()["divergence_time_s"] == c.divergence_time_s
