@@ -405,3 +405,81 @@ def test_check_cases_run_the_nominal_plant_at_the_reference_and_time_a_divergenc
     for c in diverged:
         assert 0 < c.divergence_time_s < duration + move.settle_s + 0.1
         assert c.to_dict()["divergence_time_s"] == c.divergence_time_s
+
+
+# --- the Bode plot ------------------------------------------------------------------------------
+
+
+def _plotted(monkeypatch, *args, **kwargs):
+    """Draw a Bode plot and return its figure (saved nowhere) instead of the PNG."""
+    import matplotlib.figure
+
+    from servogym.sim._margins import bode_plot
+
+    figures = []
+    monkeypatch.setattr(
+        matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: figures.append(fig)
+    )
+    bode_plot("unused.png", *args, **kwargs)
+    (fig,) = figures
+    return fig
+
+
+def test_bode_plot_draws_the_loop_its_reference_lines_and_its_margins(monkeypatch):
+    # The integrator with a 1 ms delay of test_margins: crossover 100 Hz, PM = 90 - 36 = 54
+    # degrees, phase -180 at 250 Hz where |L| = 100/250: GM = 20 log10(2.5) = 7.96 dB.
+    dt = 1e-4
+    f = frequency_grid(dt, 4000)
+    loop = 100.0 * np.exp(-2j * np.pi * f * 1e-3) / (1j * f)
+    m = margins(f, loop)
+    fig = _plotted(monkeypatch, f, loop, m, "T", (6.0, 30.0))
+    ax_m, ax_p = fig.axes
+    curve = ax_m.lines[0]
+    np.testing.assert_allclose(curve.get_xdata(), f)
+    np.testing.assert_allclose(curve.get_ydata(), 20 * np.log10(100.0 / f), rtol=1e-9)
+    phase = ax_p.lines[0].get_ydata()
+    np.testing.assert_allclose(phase, -90.0 - 360.0 * f * 1e-3, atol=1e-6)  # continuous
+    horizontal = {
+        round(ln.get_ydata()[0], 9)
+        for ln in ax_p.lines[1:]
+        if ln.get_ydata()[0] == ln.get_ydata()[1]
+    }
+    assert {-1620.0, -1260.0, -900.0, -540.0, -180.0, 180.0} <= horizontal  # -180 + 360 k
+    assert [ln.get_ydata()[0] for ln in ax_m.lines[1:2]] == [0]  # the 0 dB line
+    # The phase axis shows the whole curve with 20 degrees to spare and always 0 and -200.
+    assert ax_p.get_ylim() == pytest.approx((phase.min() - 20, 20.0))
+    vertical_m = [ln.get_xdata()[0] for ln in ax_m.lines[2:]]
+    assert vertical_m == pytest.approx([m.gain_crossover_hz, m.phase_crossover_hz, m.bandwidth_hz])
+    assert [ln.get_xdata()[0] for ln in ax_p.lines[-1:]] == pytest.approx([m.gain_crossover_hz])
+    (pm_note,) = ax_p.texts
+    assert (
+        pm_note.get_text()
+        == f"PM {m.phase_margin_deg:.1f} deg at 100 Hz"
+        == "PM 54.0 deg at 100 Hz"
+    )
+    assert pm_note.xy == pytest.approx((m.gain_crossover_hz, -180 + m.phase_margin_deg))
+    (gm_note,) = ax_m.texts
+    assert gm_note.get_text() == "GM 8.0 dB at 250 Hz"
+    assert gm_note.xy == pytest.approx((m.phase_crossover_hz, -m.gain_margin_db))
+    title = ax_m.get_title()
+    assert title == (f"gain margin {m.gain_margin_db:.3g} dB, phase margin 54 deg, "
+                     f"closed-loop bandwidth {m.bandwidth_hz:.3g} Hz")  # fmt: skip
+    assert fig.get_suptitle() == "T (minima 6 dB, 30 deg)"
+
+
+def test_bode_plot_of_a_loop_without_crossings(monkeypatch):
+    # |L| = 10/11 of ... never crosses 1 nor the negative real axis: no marks, "unbounded"
+    # margins, no bandwidth ("none"), no minima in the title when none are given.
+    f = frequency_grid(1e-4, 50)
+    loop = np.full(f.size, 10.0 + 0j)
+    m = margins(f, loop)
+    fig = _plotted(monkeypatch, f, loop, m, "T")
+    ax_m, ax_p = fig.axes
+    assert not ax_m.texts and not ax_p.texts
+    assert len(ax_m.lines) == 2  # the curve and the 0 dB line
+    assert ax_m.get_title() == (
+        "gain margin unbounded, phase margin unbounded, closed-loop bandwidth none"
+    )
+    assert fig.get_suptitle() == "T"
+    # a flat phase of 0: the axis from -200 - 20 to 0 + 20 degrees
+    assert ax_p.get_ylim() == pytest.approx((-220.0, 20.0))
