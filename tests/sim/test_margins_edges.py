@@ -68,6 +68,38 @@ def test_continuous_model_of_a_damped_slide_with_a_current_lag():
     np.testing.assert_allclose(b, [0, GEAR * KT / MASS], rtol=1e-6)
 
 
+def test_continuous_model_of_three_free_slides_driving_the_second():
+    """Three separate slides (1, 2, 4 kg), the motor and encoder on the second (nv = 3, more
+    than any shipped plant): x2'' = GEAR Kt i / 2, the others free; y = KC x2."""
+    bodies = "".join(
+        f'<body><joint name="j{k}" type="slide" axis="1 0 0"/>'
+        f'<inertial pos="0 0 0" mass="{m}" diaginertia="1 1 1"/></body>'
+        for k, m in enumerate((1, 2, 4))
+    )
+    model = mujoco.MjModel.from_xml_string(
+        f'<mujoco><option gravity="0 0 0"/><worldbody>{bodies}</worldbody>'
+        f'<actuator><motor joint="j1" gear="{GEAR}"/></actuator></mujoco>'
+    )
+    for bandwidth, n in ((0.0, 6), (0.5, 7)):
+        io = SimpleNamespace(ctrl_index=0, qpos_adr=1, torque_constant_nm_per_a=KT,
+                             amp_amps_per_count=KA, counts_per_unit=KC,
+                             current_bandwidth_hz=bandwidth)  # fmt: skip
+        a, b, c, d = continuous_model(SimpleNamespace(model=model, io=io))
+        want_a = np.zeros((n, n))
+        want_a[:3, 3:6] = np.eye(3)
+        want_b = np.zeros(n)
+        if n == 7:  # 0.5 Hz is a lag too: tau = 1 / (2 pi 0.5) = 1 / pi
+            want_a[4, 6] = GEAR * KT / 2
+            want_a[6, 6] = -math.pi
+            want_b[6] = math.pi
+        else:
+            want_b[4] = GEAR * KT / 2
+        np.testing.assert_allclose(a, want_a, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(b, want_b, rtol=1e-6, atol=1e-12)
+        np.testing.assert_array_equal(c, KC * (np.arange(n) == 1))
+        np.testing.assert_array_equal(d, np.zeros(n))
+
+
 def test_pure_inertia_response_with_and_without_latency():
     """Encoder counts per command count of x'' = k u, k = GEAR Kt KA / m, held per tick.
 
