@@ -212,6 +212,19 @@ def test_the_smallest_of_two_gain_margins_is_kept():
     assert m.phase_crossover_hz == pytest.approx(35.0)
 
 
+def test_an_exact_zero_of_the_loop_on_the_grid():
+    # A zero of L on a grid point (a notch there; PMD's held derivative at Nyquist): its log
+    # magnitude counts as -infinity. Below 1 on both sides it is no crossover.
+    f = np.array([10.0, 20.0, 30.0])
+    m = margins(f, np.array([0.5, 0.0, 0.5 + 0j]))
+    assert math.isinf(m.phase_margin_deg) and math.isnan(m.gain_crossover_hz)
+    # Rising from the zero to |L| = 2 it crosses 1 just below the upper point: in log
+    # magnitude from (a stand-in for) -infinity to log10(2), within 10 Hz * 0.301 / 300 of it.
+    m = margins(f, np.array([0.5, 0.0, 2.0 + 0j]))
+    assert 29.98 < m.gain_crossover_hz <= 30.0
+    assert m.phase_margin_deg == pytest.approx(180.0)  # L > 0 there: phase 0
+
+
 def test_continuous_phase_starts_in_the_half_open_turn_below_zero():
     # Phase at the low-frequency end in (-360, 0] degrees: 0 stays 0, -90 stays -90,
     # +90 (a differentiator) becomes -270, 180 becomes -180; later points follow continuously.
