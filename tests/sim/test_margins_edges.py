@@ -8,6 +8,7 @@ docstrings, not read off the code.
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 from types import SimpleNamespace
 
 import mujoco
@@ -16,7 +17,7 @@ import pytest
 
 from servogym.chips._space import ParameterError
 from servogym.sim import CheckLimits
-from servogym.sim._inputs import current_at, piece_moments
+from servogym.sim._inputs import current_at, exp_moment, piece_moments, substep_input
 from servogym.sim._margins import (
     LinearPlant,
     continuous_model,
@@ -487,12 +488,12 @@ def test_bode_plot_draws_the_loop_its_reference_lines_and_its_margins(monkeypatc
     np.testing.assert_allclose(curve.get_ydata(), 20 * np.log10(100.0 / f), rtol=1e-9)
     phase = ax_p.lines[0].get_ydata()
     np.testing.assert_allclose(phase, -90.0 - 360.0 * f * 1e-3, atol=1e-6)  # continuous
-    horizontal = {
-        round(ln.get_ydata()[0], 9)
-        for ln in ax_p.lines[1:]
-        if ln.get_ydata()[0] == ln.get_ydata()[1]
-    }
-    assert {-1620.0, -1260.0, -900.0, -540.0, -180.0, 180.0} <= horizontal  # -180 + 360 k
+    horizontal = [
+        ln.get_ydata()[0] for ln in ax_p.lines[1:] if ln.get_ydata()[0] == ln.get_ydata()[1]
+    ]
+    assert horizontal == [-1620, -1260, -900, -540, -180, 180]  # -180 + 360 k, k = -4 .. 1
+    # every line is drawn (a positive width)
+    assert all(ln.get_linewidth() > 0 for ax in (ax_m, ax_p) for ln in ax.lines)
     assert [ln.get_ydata()[0] for ln in ax_m.lines[1:2]] == [0]  # the 0 dB line
     # The phase axis shows the whole curve with 20 degrees to spare and always 0 and -200.
     assert ax_p.get_ylim() == pytest.approx((phase.min() - 20, 20.0))
@@ -516,8 +517,8 @@ def test_bode_plot_draws_the_loop_its_reference_lines_and_its_margins(monkeypatc
 
 
 def test_bode_plot_of_a_loop_without_crossings(monkeypatch):
-    # |L| = 10/11 of ... never crosses 1 nor the negative real axis: no marks, "unbounded"
-    # margins, no bandwidth ("none"), no minima in the title when none are given.
+    # L = 10 never crosses 1 nor the negative real axis: no marks, "unbounded" margins, no
+    # bandwidth ("none"), no minima in the title when none are given.
     f = frequency_grid(1e-4, 50)
     loop = np.full(f.size, 10.0 + 0j)
     m = margins(f, loop)
@@ -525,9 +526,197 @@ def test_bode_plot_of_a_loop_without_crossings(monkeypatch):
     ax_m, ax_p = fig.axes
     assert not ax_m.texts and not ax_p.texts
     assert len(ax_m.lines) == 2  # the curve and the 0 dB line
+    assert np.all(ax_m.lines[0].get_ydata() == 20.0)
     assert ax_m.get_title() == (
         "gain margin unbounded, phase margin unbounded, closed-loop bandwidth none"
     )
     assert fig.get_suptitle() == "T"
-    # a flat phase of 0: the axis from -200 - 20 to 0 + 20 degrees
+    # a phase of 0 throughout: the axis from -200 - 20 to 0 + 20 degrees
     assert ax_p.get_ylim() == pytest.approx((-220.0, 20.0))
+    # An exact zero of L on the grid is drawn (far below the rest), not lost as -inf.
+    loop[20] = 0.0
+    curve = _plotted(monkeypatch, f, loop, margins(f, loop), "T").axes[0].lines[0].get_ydata()
+    assert np.all(np.isfinite(curve)) and curve[20] < -1000
+
+
+# --- more of the held input -----------------------------------------------------------------
+
+
+def _exact_moment(m: int, x: float) -> Fraction:
+    """``int_0^x u^m e^-u du`` (tau = 1) in exact rational arithmetic: the series
+    ``x^(m+1) sum_n (-x)^n / (n! (n + m + 1))`` to 60 terms (the rest below 1e-40 for x <= 5)."""
+    big = Fraction(x)
+    total, term = Fraction(0), Fraction(1)
+    for n in range(60):
+        total += term / (n + m + 1)
+        term *= -big / (n + 1)
+    return big ** (m + 1) * total
+
+
+@pytest.mark.parametrize("x", [1e-9, 0.3, 0.49, 0.51, 1.0, 1.49, 2.0, 5.0])
+def test_exponential_moments_to_a_few_units_of_the_last_place(x):
+    # "no cancellation" (the module doc): within 5e-15 of the exact value on both sides of
+    # the switch between the series (x < 0.5) and the closed form.
+    for m in (0, 1, 2):
+        exact = _exact_moment(m, x)
+        got = exp_moment.py_func(m, x, 1.0)
+        assert abs(Fraction(got) - exact) <= Fraction(5, 10**15) * exact, (m, x)
+
+
+def test_a_lag_starting_exactly_one_ampere_below_its_level():
+    # i(s) = 2 - exp(-s / tau) on [0, tau]: the level's moments 2 tau, tau^2, 2 tau^3 / 3
+    # minus those of test_a_lag_starting_exactly_one_ampere_above_its_level.
+    tau = 1e-4
+    out = np.zeros(3)
+    piece_moments.py_func(out, 0.0, tau, 2.0, -1.0, tau)
+    e = math.exp(-1)
+    want = [2 * tau - tau * (1 - e), tau**2 - tau**2 * (1 - 2 * e),
+            2 * tau**3 / 3 - tau**3 * (2 - 5 * e)]  # fmt: skip
+    np.testing.assert_allclose(out, want, rtol=1e-12)
+
+
+def test_substep_input_says_whether_the_current_is_constant():
+    T = 1e-4
+    out = np.zeros(6)
+    # ideal loop, the switch inside the substep: two levels, not constant
+    assert not substep_input(out, 0.0, T, 0.0, -1.5, 2.5, 0.5 * T, 0.0)
+    # a lag settling from 0 toward 1: not constant even without a switch
+    assert not substep_input(out, 0.0, T, 0.0, 1.0, 1.0, 0.0, 1e-4)
+    # ideal, no switch: constant
+    assert substep_input(out, 0.0, T, 0.0, 1.0, 1.0, 0.0, 0.0)
+
+
+def test_result_types_are_frozen():
+    import dataclasses
+
+    from servogym.sim._check import CaseResult
+    from servogym.sim._convergence import Agreement
+    from servogym.sim._margins import Margins
+
+    m = Margins(1.0, 2.0, 3.0, 4.0, 5.0)
+    lin = LinearPlant(np.eye(1), np.ones(1), np.ones(1), np.zeros(1), np.ones(1), 1e-3, 0.0)
+    case = CaseResult("reference", "same_tick", {}, 1.0, False, "none", math.nan, 1.0, 0.0)
+    agreement = Agreement(True, True, 0, 8.0, 1.0, 1.0, False, False, "")
+    for obj, name in ((m, "bandwidth_hz"), (lin, "dt"), (case, "cost"), (agreement, "ok"),
+                      (CheckLimits(), "min_gain_margin_db")):  # fmt: skip
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            setattr(obj, name, 0)
+
+
+# --- more margins ----------------------------------------------------------------------------
+
+
+def test_a_loop_unstable_at_its_first_crossover_has_a_negative_phase_margin():
+    # L = wc e^{-jwD} / (jw), wc = 2 pi 100, D = 4 ms: at the crossover (100 Hz) the phase
+    # is -90 - 360 * 100 * 0.004 = -234 degrees: PM = 180 - 234 = -54 (the classical value,
+    # not its distance from -1).
+    f = frequency_grid(1e-4, 4000)
+    loop = 100.0 * np.exp(-2j * np.pi * f * 4e-3) / (1j * f)
+    m = margins(f, loop)
+    assert m.phase_margin_deg == pytest.approx(-54.0, abs=0.05)
+    assert m.gain_crossover_hz == pytest.approx(100.0, rel=1e-3)
+
+
+def test_later_crossovers_far_round_the_circle_and_ties():
+    """Later crossovers count by their angle from -1 however far the phase has turned:
+    at -500 degrees L points 140 degrees below the positive axis, 40 degrees from -1.
+    Of two equal margins the first crossover is reported."""
+    f = np.array([1.0, 100.0, 199.0, 201.0, 600.0, 1070.0, 1090.0])
+    mag = np.array([100.0, 3.0, 1.01, 0.99, 0.5, 0.99, 1.01])
+    deg = np.array([-180.0, -150.0, -125.0, -125.0, -300.0, -500.0, -500.0])
+    m = margins(f, mag * np.exp(1j * np.radians(deg)))
+    assert m.phase_margin_deg == pytest.approx(40.0)
+    assert m.gain_crossover_hz == pytest.approx(1080.0, rel=1e-3)
+    deg[-2:] = -235.0  # 180 - 235 = -55: 55 degrees from -1, as at the first crossover
+    m = margins(f, mag * np.exp(1j * np.radians(deg)))
+    assert m.phase_margin_deg == pytest.approx(55.0)
+    assert m.gain_crossover_hz == pytest.approx(200.0, rel=1e-3)
+    # Two crossings of the negative real axis at -0.5 (15 and 35 Hz): the first is reported.
+    f = np.array([10.0, 20.0, 30.0, 40.0])
+    m = margins(f, np.array([-0.5 - 0.1j, -0.5 + 0.1j, -0.5 + 0.1j, -0.5 - 0.1j]))
+    assert m.gain_margin_db == pytest.approx(20 * math.log10(2))
+    assert m.phase_crossover_hz == pytest.approx(15.0)
+
+
+def test_bandwidth_is_measured_from_the_lowest_frequency():
+    # |L / (1 + L)| = 0.99, 1.5, 0.9, 0.6 (L = 99, -3, 9, 1.5): 3 dB below the value at the
+    # lowest frequency (0.99 / sqrt(2) = 0.70) first at 4 Hz; a resonance on the way up
+    # (1.5 at 2 Hz) does not move the reference.
+    f = np.array([1.0, 2.0, 3.0, 4.0])
+    m = margins(f, np.array([99.0, -3.0, 9.0, 1.5 + 0j]))
+    assert m.bandwidth_hz == 4.0
+
+
+def test_continuous_phase_of_a_start_on_the_negative_axis_from_below():
+    # angle(-1 - 0j) = -180 degrees, already in (-360, 0]: kept.
+    loop = np.array([complex(-1.0, -0.0), np.exp(-1j * np.radians(200.0))])
+    np.testing.assert_allclose(np.degrees(continuous_phase(loop)), [-180.0, -200.0])
+
+
+def test_plant_response_on_the_grid_and_the_open_loop_by_hand():
+    from servogym.chips import get_chip
+    from servogym.sim._margins import open_loop, plant_response
+
+    # The slide of test_pure_inertia_response..., L = 0: P = KC k T^2/2 (z+1)/(z-1)^2 at
+    # z = exp(2 pi j f T) on the default grid.
+    dt = 1e-3
+    freqs, p = plant_response(slide_plant(), dt, 0.0)
+    np.testing.assert_array_equal(freqs, frequency_grid(dt))
+    z = np.exp(2j * np.pi * freqs * dt)
+    k = GEAR * KT * KA / MASS
+    np.testing.assert_allclose(p, KC * k * dt**2 / 2 * (z + 1) / (z - 1) ** 2, rtol=1e-6)
+    # PMD (MC58000, biquads off), Ki = 512 (2 after the 2^-8 shift), Kout = 32768 (0.5):
+    # C = 1 / (1 - z^-1); at a quarter of the sample rate z = j, C = 1 / (1 + j) = (1 - j)/2;
+    # times P = 2: 1 - j.
+    family, model = get_chip("MC58000")
+    params = family.make_params(model, dict(kp=0, ki=512, kd=0, kout=32768))
+    f = np.array([0.25 / family.sample_time_s(params)])
+    got = open_loop(family, params, family.default_assumptions(), f, np.array([2.0 + 0j]))
+    assert got[0] == pytest.approx(1 - 1j)
+
+
+def test_check_keeps_the_scenarios_assumptions(tmp_path, monkeypatch):
+    """A scenario with its own assumptions (latency same_tick, a 16-bit DAC, the integral
+    on the previous errors): the reference case, the margins and the Bode plot use them."""
+    import dataclasses
+    import time
+
+    import matplotlib.figure
+
+    from servogym.chips import get_chip
+    from servogym.sim import Scenario, check_params
+    from servogym.sim._check import loop_margins, stress_cases, write_bode
+    from servogym.sim._scenario import Evaluator
+
+    from .test_convergence import SETS
+
+    family, _ = get_chip("6250")
+    asm = family.assumptions_type(loop_latency="same_tick", dac_bits="16",
+                                  integral_timing="previous")  # fmt: skip
+    base = Scenario("6250", "rotary")
+    scenario = Scenario("6250", "rotary", moves=base.moves[:1], assumptions=asm)
+    params = scenario.params(SETS["6250/rotary/default"]["values"])
+    cases = stress_cases(scenario, CheckLimits())
+    assert cases[0].loop_latency == "same_tick"
+    assert [c.name for c in cases[1:3]] == ["latency full_period", "latency half_period"]
+    own = loop_margins(scenario, params)
+    assert list(own) == ["same_tick"]
+    default = loop_margins(dataclasses.replace(scenario, assumptions=None), params)
+    assert own["same_tick"][2] != default["full_period"][2]
+    t0 = time.perf_counter()
+    report = check_params(params, scenario, CheckLimits(reference_substeps=4), workers=1)
+    assert 0 < report.elapsed_s <= time.perf_counter() - t0
+    assert report.margins == own["same_tick"][2]
+    ref = Evaluator(dataclasses.replace(scenario, integrator="rk4", substeps=4)).evaluate(params)
+    assert report.cases[0].cost == ref.cost
+    figures = []
+    monkeypatch.setattr(
+        matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: figures.append(fig)
+    )
+    write_bode(tmp_path / "bode.png", scenario, params, CheckLimits())
+    (fig,) = figures
+    assert fig.get_suptitle() == (
+        "6250 on rotary: open loop (latency same_tick) (minima 6 dB, 30 deg)"
+    )
+    curve = fig.axes[0].lines[0].get_ydata()
+    np.testing.assert_allclose(curve, 20 * np.log10(np.abs(own["same_tick"][1])))
