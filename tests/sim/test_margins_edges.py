@@ -389,6 +389,9 @@ def test_traces_compared_over_their_common_ticks():
     a = compare(ev(1.0, trace=(0, 101, 200, 9999)), ev(1.0, trace=(0, 100, 200)))
     assert a.ok and a.max_trace_difference == 1
     assert a.cost == 1.0 and a.reference_cost == 1.0
+    # No common tick (a run that ended before its first tick): no difference, 0 counts.
+    a = compare(ev(1.0, trace=()), ev(1.0, trace=(0, 100, 200)))
+    assert a.ok and a.max_trace_difference == 0
     # 0.5 % of a 3000-count peak error: 15 counts, more than 8.
     a = compare(ev(1.0, trace=(0, 100, 200)), ev(1.0, trace=(0, 100, 215), fe=3000.0))
     assert a.ok and a.trace_tolerance == 15 and a.max_trace_difference == 15
