@@ -397,6 +397,9 @@ def test_traces_compared_over_their_common_ticks():
     assert a.ok and a.trace_tolerance == 15 and a.max_trace_difference == 15
 
 
+# --- the stress set, the periods, the cases' runs -------------------------------------------
+
+
 def test_stress_case_names_state_the_spreads_in_percent():
     # Spreads of 0.9: "load -90%", "load +90%", "friction -90%", "friction +90%"; the load
     # of the rotary plant (9e-5 kg m^2) times 0.1 and 1.9, each kept inside its legal range.
@@ -587,6 +590,9 @@ def test_substep_input_says_whether_the_current_is_constant():
     assert not substep_input(out, 0.0, T, 0.0, 1.0, 1.0, 0.0, 1e-4)
     # ideal, no switch: constant
     assert substep_input(out, 0.0, T, 0.0, 1.0, 1.0, 0.0, 0.0)
+
+
+# --- frozen results ----------------------------------------------------------------------------
 
 
 def test_result_types_are_frozen():
