@@ -156,6 +156,33 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
         ["tests/sim/test_runner.py", "tests/sim/test_metrics_edges.py", "tests/sim/test_inputs.py"],
     ),
     "sim-scenario": (["servogym/sim/_scenario.py"], ["tests/sim/test_scenario.py"]),
+    # The filters' linear response C(z): plain numpy, no kernel (the fresh numba cache costs
+    # nothing here; the reference filters it is measured against are plain Python).
+    "chips-response": (
+        [
+            "servogym/chips/pmd/_response.py",
+            "servogym/chips/pmac/_response.py",
+            "servogym/chips/parker6k/_response.py",
+        ],
+        ["tests/chips/test_filter_response.py", "tests/chips/test_response_edges.py"],
+    ),
+    # The held input (numba, inlined into the loop kernel: every mutant recompiles the loop,
+    # about 6 s of the ~50 s baseline), the margins, the check and the agreement rule.
+    "sim-margins": (
+        [
+            "servogym/sim/_inputs.py",
+            "servogym/sim/_margins.py",
+            "servogym/sim/_check.py",
+            "servogym/sim/_convergence.py",
+        ],
+        [
+            "tests/sim/test_inputs.py",
+            "tests/sim/test_margins.py",
+            "tests/sim/test_margins_edges.py",
+            "tests/sim/test_check.py",
+            "tests/sim/test_convergence.py",
+        ],
+    ),
     "autotune-session": (
         ["servogym/autotune/_session.py"],
         ["tests/autotune/test_budget.py", "tests/autotune/test_resume.py"],
