@@ -14,6 +14,7 @@ from __future__ import annotations
 import inspect
 import logging
 import sqlite3
+import threading
 import time
 
 import optuna
@@ -292,3 +293,26 @@ def test_a_trial_whose_worker_died_before_its_first_heartbeat_is_failed(tmp_path
     trials = study.get_trials()
     assert [t.state.name for t in trials] == ["FAIL", "WAITING"]
     assert trials[1].system_attrs["failed_trial"] == 0
+
+
+def test_a_session_joins_a_study_of_other_workers_by_default():
+    # Sessions are shared unless a tuner says otherwise (the classical tuners pass
+    # shared=False): a second worker joins the study of the first.
+    storage = optuna.storages.InMemoryStorage()
+    kw = {"budget": 4, "storage": storage, "study_name": "j", "tuner_name": "random"}
+    first = Session(short_problem(), **kw)
+    second = Session(short_problem(), load_if_exists=True, **kw)
+    assert second.shared and second.study._study_id == first.study._study_id
+    with pytest.raises(TuneError, match="sequential procedure and cannot share"):
+        Session(short_problem(), load_if_exists=True, shared=False, **kw)
+
+
+def test_the_heartbeat_thread_never_keeps_a_process_alive(tmp_path):
+    # A daemon thread: a program that ends without leaving its session (an application that
+    # never closes it) is not held open by the heartbeats; leaving the session stops them.
+    s = Session(short_problem(), budget=2, storage=str(tmp_path / "s.journal"),
+                study_name="h", tuner_name="random")  # fmt: skip
+    with s:
+        (beat,) = [t for t in threading.enumerate() if t.name == "servogym-heartbeat"]
+        assert beat.daemon and beat.is_alive()
+    assert not beat.is_alive()
