@@ -316,3 +316,25 @@ def test_the_heartbeat_thread_never_keeps_a_process_alive(tmp_path):
         (beat,) = [t for t in threading.enumerate() if t.name == "servogym-heartbeat"]
         assert beat.daemon and beat.is_alive()
     assert not beat.is_alive()
+
+
+@pytest.mark.parametrize(("value", "feasible"), [(0.0, True), (0.5, False)])
+def test_the_running_best_counts_only_trials_that_meet_their_constraints(
+    monkeypatch, value, feasible
+):
+    # Every trial gets one constraint value: 0 is met (feasible means every value <= 0),
+    # 0.5 is not, and then no best is reported at any time, however cheap a trial.
+    from servogym.autotune import TuneProblem
+
+    monkeypatch.setattr(TuneProblem, "constraint_values", lambda *a: {"following_error": value})
+    seen = []
+    s = Session(short_problem(), budget=3, storage=None, study_name="c", tuner_name="random",
+                batch_size=3, progress=lambda done, budget, best: seen.append(best))  # fmt: skip
+    with s:
+        s.run_sampler(_random)
+    costs = [t.values[0] for t in s.trials()]
+    assert len(costs) == 3 and len(seen) >= 4
+    if feasible:
+        assert seen[-1] == min(costs) and None not in seen[1:]
+    else:
+        assert seen == [None] * len(seen)
