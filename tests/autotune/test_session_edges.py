@@ -338,3 +338,34 @@ def test_the_running_best_counts_only_trials_that_meet_their_constraints(
         assert seen[-1] == min(costs) and None not in seen[1:]
     else:
         assert seen == [None] * len(seen)
+
+
+def test_storages_default_to_a_5_s_heartbeat_and_a_20_s_grace_period(tmp_path):
+    # docs/autotune.md: "a heartbeat every 5 s ... a trial without a heartbeat for 20 s is
+    # failed"; given values replace them.
+    journal = open_storage(str(tmp_path / "s.journal"))
+    rdb = open_storage(f"sqlite:///{tmp_path / 's.db'}")
+    assert journal.get_heartbeat_interval() == 5 and journal._grace_period == 20
+    assert rdb.get_heartbeat_interval() == 5 and rdb.grace_period == 20
+    given = open_storage(str(tmp_path / "t.journal"), heartbeat_interval=2, grace_period=7)
+    assert given.get_heartbeat_interval() == 2 and given._grace_period == 7
+
+
+def test_the_overhead_is_the_main_threads_cpu_time_spent_asking_and_telling():
+    s, _ = _session(6, batch_size=3)
+    assert s.overhead() == {"ask_s": 0.0, "tell_s": 0.0}
+    with s:
+        t0 = time.thread_time()
+        s.run_sampler(_random)
+        spent = time.thread_time() - t0
+    o = s.overhead()
+    assert o["ask_s"] > 0 and o["tell_s"] > 0 and o["ask_s"] + o["tell_s"] <= spent
+    # A classical tuner's candidates are added, not asked: telling time only.
+    s, _ = _session(2)
+    values = register_values(s.problem.scenario.default_params())
+    with s:
+        t0 = time.thread_time()
+        s.candidates([(values, "a"), (values, "b")])
+        spent = time.thread_time() - t0
+    o = s.overhead()
+    assert o["ask_s"] == 0.0 and 0 < o["tell_s"] <= spent
