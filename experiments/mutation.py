@@ -164,10 +164,6 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
             "tests/autotune/test_stored_study.py",
             "tests/autotune/test_shared_study.py",
             "tests/autotune/test_resume.py",
-            # hangs at times: a worker killed inside study.ask leaves an RDB trial without a
-            # heartbeat, which Optuna never fails as stale (reported to the lead)
-            "--deselect=tests/autotune/test_resume.py::"
-            "test_a_killed_worker_loses_nothing_its_running_trials_are_retried[sqlite]",
         ],
     ),
 }
