@@ -363,3 +363,49 @@ def test_the_overhead_is_the_main_threads_cpu_time_spent_asking_and_telling():
         spent = time.thread_time() - t0
     o = s.overhead()
     assert o["ask_s"] == 0.0 and 0 < o["tell_s"] <= spent
+
+
+def test_a_worker_waiting_for_another_ones_last_trial_says_so_once(monkeypatch, caplog):
+    # Budget 2: another worker runs trial 0; this one evaluates trial 1, then has nothing
+    # left to ask and waits, polling, until trial 0 is finished; it logs the wait once.
+    monkeypatch.setattr(session_module, "POLL_S", 0.01)
+    caplog.set_level(logging.INFO, logger=session_module.__name__)
+    looks = []
+
+    def progress(done, budget, best):
+        looks.append(done)
+        if done == 1 and looks.count(1) == 4:  # this worker has polled a few times
+            other.tell(first, [1.0])
+
+    s, other = _session(2, progress, batch_size=2)
+    first = other.ask(s.problem.space.distributions())
+    with s:
+        s.run_sampler(_random)
+    assert [t.state.name for t in s.trials()] == ["COMPLETE", "COMPLETE"]
+    waits = [r.getMessage() for r in caplog.records if "waiting" in r.getMessage()]
+    assert waits == ["waiting for 1 trial(s) running on other workers"]
+
+
+def test_a_set_refused_by_a_cross_register_rule_counts_as_done(monkeypatch):
+    # The first two sets of a batch of 4 break a family's rule (make_params raises): they
+    # are stored as failed with their error, count toward the budget, and the progress
+    # reports 3 then 4 done as the two others finish.
+    from servogym.autotune import SearchSpace
+
+    real, calls = SearchSpace.make_params, []
+
+    def make_params(self, values):
+        calls.append(1)
+        if len(calls) <= 2:
+            raise ValueError("ki must be 0 when kp is 0")
+        return real(self, values)
+
+    monkeypatch.setattr(SearchSpace, "make_params", make_params)
+    seen = []
+    s, _ = _session(4, lambda done, budget, best: seen.append(done), batch_size=4)
+    with s:
+        s.run_sampler(_random)
+    trials = s.trials()
+    assert [t.state.name for t in trials] == ["FAIL", "FAIL", "COMPLETE", "COMPLETE"]
+    assert all(t.user_attrs["error"] == "ki must be 0 when kp is 0" for t in trials[:2])
+    assert seen == [0, 3, 4, 4] and s.n_done == 4
