@@ -409,3 +409,13 @@ def test_a_set_refused_by_a_cross_register_rule_counts_as_done(monkeypatch):
     assert [t.state.name for t in trials] == ["FAIL", "FAIL", "COMPLETE", "COMPLETE"]
     assert all(t.user_attrs["error"] == "ki must be 0 when kp is 0" for t in trials[:2])
     assert seen == [0, 3, 4, 4] and s.n_done == 4
+
+
+def test_a_worker_giving_a_warm_start_to_a_study_started_without_one_is_refused():
+    problem = short_problem()
+    warm = register_values(problem.scenario.default_params())
+    storage = optuna.storages.InMemoryStorage()
+    kw = {"budget": 4, "storage": storage, "study_name": "w", "tuner_name": "random"}
+    Session(problem, **kw)
+    with pytest.raises(TuneError, match=r"Differences: warm_start: stored None, now \{'kp': "):
+        Session(problem, load_if_exists=True, warm_start=warm, **kw)
