@@ -185,7 +185,13 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
     ),
     "autotune-session": (
         ["servogym/autotune/_session.py"],
-        ["tests/autotune/test_budget.py", "tests/autotune/test_resume.py"],
+        [
+            "tests/autotune/test_session_edges.py",
+            "tests/autotune/test_budget.py",
+            "tests/autotune/test_stored_study.py",
+            "tests/autotune/test_shared_study.py",
+            "tests/autotune/test_resume.py",
+        ],
     ),
 }
 

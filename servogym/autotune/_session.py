@@ -333,8 +333,6 @@ def open_storage(
 
 
 def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:
-    import optuna
-
     shown = _redact(url)
     scheme, _, rest = url.partition("://")
     if scheme in ("postgresql", "postgres"):
@@ -355,7 +353,7 @@ def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                storage = optuna.storages.RDBStorage(
+                storage = _rdb_storage_class()(
                     url,
                     engine_kwargs=kwargs,
                     heartbeat_interval=heartbeat_interval,
@@ -385,6 +383,44 @@ def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:
         event.listen(storage.engine, "connect", _pragmas)
         storage.engine.dispose()  # reconnect with the pragmas
     return storage
+
+
+def _rdb_storage_class() -> type:
+    import datetime
+
+    import optuna
+    from optuna.storages._rdb import models
+    from optuna.storages._rdb.storage import _create_scoped_session
+    from optuna.trial import TrialState
+    from sqlalchemy import orm
+
+    class _RDBStorage(optuna.storages.RDBStorage):
+        """Optuna's RDB storage, where a running trial without any heartbeat beats from its
+        start, as on a journal file: its worker died inside ``study.ask``, after the trial
+        was created and before its first heartbeat. Optuna skips such a trial, so every
+        worker, and a resume, would wait for it forever."""
+
+        def _get_stale_trial_ids(self, study_id: int) -> list[int]:
+            stale = super()._get_stale_trial_ids(study_id)
+            grace = self.grace_period or 2 * (self.heartbeat_interval or HEARTBEAT_INTERVAL_S)
+            oldest = datetime.datetime.now() - datetime.timedelta(seconds=grace)
+            with _create_scoped_session(self.scoped_session) as session:
+                running = (
+                    session.query(models.TrialModel)
+                    .options(orm.selectinload(models.TrialModel.heartbeats))
+                    .filter(models.TrialModel.state == TrialState.RUNNING)
+                    .filter(models.TrialModel.study_id == study_id)
+                    .all()
+                )
+                stale += [
+                    t.trial_id
+                    for t in running
+                    if not t.heartbeats and t.datetime_start is not None
+                    and t.datetime_start < oldest
+                ]  # fmt: skip
+            return stale
+
+    return _RDBStorage
 
 
 def _rdb_callback_kwarg() -> str:
