@@ -77,7 +77,10 @@ def _cases() -> list[tuple[list[str], str, str]]:
         ([*tune, "--warm-start", "{d}/dup.json"], "--warm-start", "'kp'"),
         ([*tune, "--warm-start", "{d}/truncated.c"], "--warm-start", "truncated.c"),
         ([*tune, "--storage", "nosuchdb://x"], "--storage", "nosuchdb://x"),
-        ([*tune, "--storage", "not a url"], "--storage", "not a url"),
+        # (a plain path is a journal file, created if missing: "not a url" is legal)
+        ([*tune, "--storage", "{d}"], "--storage", "is a folder"),
+        ([*tune, "--storage", "{d}/corrupt.json"], "--storage", "not an Optuna journal file"),
+        ([*tune, "--storage", "{d}/binary.bin"], "--storage", "not an Optuna journal file"),
         ([*TUNE, "{d}/afile.txt"], "--out", "afile.txt"),
         ([*TUNE, "{d}/done"], "--out", "done"),
         ([*TUNE, "{d}/corruptdb", "--resume"], "--storage", "study.db"),

@@ -324,12 +324,53 @@ def open_storage(
                 f"cannot open the study storage {url!r}: the folder {str(path.parent)!r} "
                 "does not exist."
             )
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # JournalStorage is experimental in some versions
-            return _journal_storage_class()(
-                _journal_backend(path), heartbeat_interval, grace_period, _retry_callback()
+        if path.is_dir():
+            raise TuneError(
+                f"cannot open the study storage {url!r}: it is a folder; give a journal file "
+                f"path such as {str(path / 'study.journal')!r}."
             )
+        _check_journal_file(path, url)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # JournalStorage is experimental in some versions
+                return _journal_storage_class()(
+                    _journal_backend(path), heartbeat_interval, grace_period, _retry_callback()
+                )
+        except OSError as exc:
+            raise TuneError(
+                f"cannot open the study storage {url!r}: {exc.strerror or exc}."
+            ) from None
+        # Not JSON lines (ValueError), or JSON that is no journal operation: Optuna's replay
+        # raises KeyError, TypeError or AssertionError("Should not reach.").
+        except (ValueError, KeyError, TypeError, AssertionError) as exc:
+            raise TuneError(
+                f"cannot open the study storage {url!r}: not an Optuna journal file "
+                f"({_one_line(exc).rstrip('.')})."
+            ) from None
     return _open_rdb(url, heartbeat_interval, grace_period)
+
+
+def _check_journal_file(path: Path, url: str) -> None:
+    """Refuse an existing file that is not an Optuna journal before anything is appended to
+    it: its first line must be a whole JSON object with an ``op_code``."""
+    try:
+        with open(path, "rb") as f:
+            first = f.readline(1 << 20)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise TuneError(f"cannot open the study storage {url!r}: {exc.strerror or exc}.") from None
+    if not first:
+        return  # empty: a new journal
+    try:
+        ok = first.endswith(b"\n") and "op_code" in json.loads(first)
+    except (ValueError, TypeError):
+        ok = False
+    if not ok:
+        raise TuneError(
+            f"cannot open the study storage {url!r}: not an Optuna journal file (its first "
+            "line is not a journal operation); nothing was written to it."
+        )
 
 
 def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:

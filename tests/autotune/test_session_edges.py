@@ -419,3 +419,37 @@ def test_a_worker_giving_a_warm_start_to_a_study_started_without_one_is_refused(
     Session(problem, **kw)
     with pytest.raises(TuneError, match=r"Differences: warm_start: stored None, now \{'kp': "):
         Session(problem, load_if_exists=True, warm_start=warm, **kw)
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b"garbage\n", b'{"a": 1}\n', b"\x00\x01binary", b'{"op_code": 0'],
+    ids=["text", "json-not-journal", "binary", "truncated-first-line"],
+)
+def test_a_file_that_is_no_journal_is_refused_and_left_as_it_was(tmp_path, content):
+    # A plain path is a journal file. An existing file that is not one (a parameter file
+    # given by mistake, a truncated journal) is refused before anything is appended to it.
+    from servogym.autotune._session import TuneError, open_storage
+
+    path = tmp_path / "params.json"
+    path.write_bytes(content)
+    with pytest.raises(TuneError, match=r"not an Optuna journal file.*nothing was written"):
+        open_storage(str(path))
+    assert path.read_bytes() == content
+
+
+def test_a_folder_is_no_journal_file(tmp_path):
+    from servogym.autotune._session import TuneError, open_storage
+
+    with pytest.raises(TuneError, match="it is a folder"):
+        open_storage(str(tmp_path))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_empty_or_missing_file_is_a_new_journal(tmp_path):
+    from servogym.autotune._session import open_storage
+
+    (tmp_path / "empty.journal").write_bytes(b"")
+    for name in ("empty.journal", "new.journal"):
+        storage = open_storage(str(tmp_path / name))
+        assert storage.get_all_studies() == []
