@@ -183,6 +183,24 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
             "tests/sim/test_convergence.py",
         ],
     ),
+    "chips-load": (
+        [
+            "servogym/chips/_load.py",
+            "servogym/chips/pmd/_family.py",
+            "servogym/chips/pmac/_family.py",
+            "servogym/chips/parker6k/_family.py",
+        ],
+        [
+            "tests/chips/test_family_contract.py",
+            "tests/test_cli.py",
+            "tests/files",
+            "tests/test_cli_bad_input.py",
+        ],
+    ),
+    "sim-twin": (
+        ["servogym/sim/_pyloop.py", "servogym/sim/_plot.py"],
+        ["tests/sim/test_runner.py", "tests/test_cli.py", "-k", "python_loop or simulate"],
+    ),
     "autotune-session": (
         ["servogym/autotune/_session.py"],
         [
