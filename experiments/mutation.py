@@ -191,6 +191,7 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
             "servogym/chips/parker6k/_family.py",
         ],
         [
+            "tests/chips/test_family_latency.py",
             "tests/chips/test_family_contract.py",
             "tests/test_cli.py",
             "tests/files",
