@@ -192,6 +192,7 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
         ],
         [
             "tests/chips/test_family_latency.py",
+            "tests/chips/test_load_edges.py",
             "tests/chips/test_parker6k_family.py",
             "tests/chips/test_family_contract.py",
             "tests/test_cli.py",
