@@ -202,7 +202,10 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
     ),
     "sim-twin": (
         ["servogym/sim/_pyloop.py", "servogym/sim/_plot.py"],
-        ["tests/sim/test_runner.py", "tests/test_cli.py", "-k", "python_loop or simulate"],
+        [
+            "tests/sim/test_runner.py::test_compiled_loop_equals_python_loop",
+            "tests/test_cli.py::test_simulate_writes_plot_and_metrics",
+        ],
     ),
     "autotune-session": (
         ["servogym/autotune/_session.py"],
