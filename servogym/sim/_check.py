@@ -28,7 +28,14 @@ from typing import Any
 
 from servogym.chips._space import ParameterError
 from servogym.plants import get_plant
-from servogym.sim._margins import Margins, bode_plot, margins, open_loop, plant_response
+from servogym.sim._margins import (
+    Margins,
+    bode_plot,
+    continuous_model,
+    margins,
+    open_loop,
+    plant_response,
+)
 from servogym.sim._runner import REFERENCE_SUBSTEPS
 from servogym.sim._scenario import Evaluator, Scenario
 
@@ -219,10 +226,11 @@ def loop_margins(scenario: Scenario, params: Any, latencies: Sequence[str] | Non
     family = get_plant(scenario.plant)
     plant = family.build({**family.nominal(), **scenario.plant_values})
     dt = chip.sample_time_s(params)
+    continuous = continuous_model(plant)  # the same for every latency
     out = {}
     for choice in latencies or [asm.loop_latency]:
         a = dataclasses.replace(asm, loop_latency=choice)
-        freqs, response = plant_response(plant, dt, chip.loop_latency_s(params, a))
+        freqs, response = plant_response(plant, dt, chip.loop_latency_s(params, a), continuous)
         loop = open_loop(chip, params, a, freqs, response)
         out[choice] = (freqs, loop, margins(freqs, loop))
     return out

@@ -132,9 +132,13 @@ def _hold_integral(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, 
     return e[:n, :n], e[:n, n]
 
 
-def linearize(plant: Any, dt: float, latency: float) -> LinearPlant:
-    """The plant at period ``dt`` with loop latency ``latency`` (s), input in command counts."""
-    a, b, c, d = continuous_model(plant)
+def linearize(plant: Any, dt: float, latency: float, continuous: Any = None) -> LinearPlant:
+    """The plant at period ``dt`` with loop latency ``latency`` (s), input in command counts.
+
+    ``continuous``: the plant's :func:`continuous_model`, when already computed (it does not
+    depend on ``dt`` or ``latency``); computed here otherwise.
+    """
+    a, b, c, d = continuous if continuous is not None else continuous_model(plant)
     b = b * plant.io.amp_amps_per_count
     phi_rest, g_new = _hold_integral(a, b, dt - latency)
     phi_lat, g_lat = _hold_integral(a, b, latency)
@@ -223,11 +227,14 @@ def continuous_phase(loop: np.ndarray) -> np.ndarray:
     return phase - 2 * np.pi * math.ceil(phase[0] / (2 * np.pi))
 
 
-def plant_response(plant: Any, dt: float, latency: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(freqs_hz, P)``: the plant's response on :func:`frequency_grid` for period ``dt``."""
+def plant_response(
+    plant: Any, dt: float, latency: float, continuous: Any = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(freqs_hz, P)``: the plant's response on :func:`frequency_grid` for period ``dt``
+    (``continuous`` as for :func:`linearize`)."""
     freqs = frequency_grid(dt)
     z = np.exp(2j * np.pi * freqs * dt)
-    return freqs, linearize(plant, dt, latency).response(z)
+    return freqs, linearize(plant, dt, latency, continuous).response(z)
 
 
 def open_loop(

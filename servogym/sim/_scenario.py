@@ -17,7 +17,7 @@ import numpy as np
 
 from servogym.chips._family import Move, get_chip
 from servogym.plants import get_plant
-from servogym.sim._margins import Margins, margins, open_loop, plant_response
+from servogym.sim._margins import Margins, continuous_model, margins, open_loop, plant_response
 from servogym.sim._metrics import EpisodeMetrics
 from servogym.sim._runner import EpisodeResult, ServoLoop
 
@@ -239,20 +239,26 @@ class Evaluator:
         )
         self._profiles: dict[tuple, list] = {}
         self._plant_responses: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self._continuous: dict[tuple, Any] = {}
 
     def margins(self, params: Any) -> Margins:
         """Stability margins of ``params`` on the current plant instance (``_margins``).
 
-        The plant's linearisation and frequency response are computed once per plant
-        instance, servo period and latency, then reused.
+        The plant's linearisation is computed once per plant instance, its frequency
+        response once per plant instance, servo period and latency, then reused.
         """
         chip = self.scenario.chip
         asm = self.scenario.assumptions or chip.default_assumptions()
         dt = chip.sample_time_s(params)
         latency = chip.loop_latency_s(params, asm)
-        key = (tuple(sorted(self.plant.values.items())), dt, latency)
+        instance = tuple(sorted(self.plant.values.items()))
+        key = (instance, dt, latency)
         if key not in self._plant_responses:
-            self._plant_responses[key] = plant_response(self.plant, dt, latency)
+            if instance not in self._continuous:
+                self._continuous[instance] = continuous_model(self.plant)
+            self._plant_responses[key] = plant_response(
+                self.plant, dt, latency, self._continuous[instance]
+            )
         freqs, plant = self._plant_responses[key]
         return margins(freqs, open_loop(chip, params, asm, freqs, plant))
 
