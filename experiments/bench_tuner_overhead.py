@@ -27,6 +27,13 @@ from servogym.autotune import Constraints, SearchSpace, Session, TuneProblem, ge
 from servogym.autotune._session import quiet_optuna
 from servogym.sim import Evaluator, Scenario
 
+STORAGES = {
+    "memory": lambda tmp: None,
+    "journal file (default)": lambda tmp: str(tmp / "study.journal"),
+    "sqlite": lambda tmp: f"sqlite:///{tmp / 'study.db'}",
+}
+"""Each storage measured, as its URL in a fresh temporary folder."""
+
 
 def measure(storage: str | None, trials: int, workers: int, margins: bool) -> dict[str, float]:
     spent = [0.0]
@@ -71,16 +78,11 @@ def main() -> None:
           f"thread(s), margin constraints {'on' if args.margins else 'off'}, median of "
           f"{args.repeat}")  # fmt: skip
     print(f"{'storage':24} {'eval s':>7} {'ask s':>7} {'tell s':>7} {'share':>7} {'wall s':>7}")
-    for name in ("memory", "journal file (default)", "sqlite"):
+    for name, url_in in STORAGES.items():
         runs = []
         for _ in range(args.repeat):
             with tempfile.TemporaryDirectory() as tmp:
-                url = {
-                    "memory": None,
-                    "journal file (default)": str(Path(tmp) / "study.journal"),
-                    "sqlite": f"sqlite:///{Path(tmp) / 'study.db'}",
-                }[name]
-                m = measure(url, args.trials, args.workers, args.margins)
+                m = measure(url_in(Path(tmp)), args.trials, args.workers, args.margins)
             m["share"] = (m["ask_s"] + m["tell_s"]) / m["eval_s"]
             runs.append(m)
         med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
