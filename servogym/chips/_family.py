@@ -83,6 +83,8 @@ class ChipFamily(abc.ABC):
         response_function: ``(params, assumptions, z) -> complex array``: the linear part of
             the filter's feedback path (:meth:`filter_response`), in the family's
             ``_response`` module.
+        polynomial_function: ``(params, assumptions) -> (num, den)``: the same as
+            polynomials in ``z^-1`` (:meth:`filter_polynomials`), in the same module.
     """
 
     name: str
@@ -97,6 +99,7 @@ class ChipFamily(abc.ABC):
     env_name: str = ""
     error_trip_off: Mapping[str, int] = {}
     response_function: Any = None
+    polynomial_function: Any = None
 
     @staticmethod
     @abc.abstractmethod
@@ -169,6 +172,33 @@ class ChipFamily(abc.ABC):
         with np.errstate(divide="ignore", invalid="ignore"):
             out = np.asarray(self.response_function(params, asm, zz), dtype=complex)
         return np.broadcast_to(out, zz.shape).copy()
+
+    def filter_polynomials(self, params: Any, assumptions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`filter_response` as a ratio of polynomials in ``z^-1``.
+
+        ``C(z) = num(z^-1) / den(z^-1)`` exactly (to rounding), coefficients in ascending
+        powers of ``z^-1``, ``den[0] = 1``; the closed loop's characteristic polynomial and
+        state matrix are built from them (``servogym.sim._margins``). An integral gain puts
+        ``1 - z^-1`` into ``den``; a PMD DerivativeTime ``d`` makes ``num`` an FIR of degree
+        up to ``2d - 1`` (plus the biquads' and the integral's).
+
+        Args:
+            params: A parameter set of this family.
+            assumptions: The family's assumption switches; ``None`` for the defaults.
+
+        Returns:
+            Two float arrays ``(num, den)``, neither empty (``num = [0.0]`` for a zero
+            filter).
+        """
+        if not isinstance(params, self.params_type):
+            raise TypeError(
+                f"params for a {self.name} chip must be {self.params_type.__name__}; "
+                f"got {type(params).__name__}"
+            )
+        num, den = self.polynomial_function(params, self._assumptions(assumptions))
+        num = np.asarray(num, dtype=float)
+        den = np.asarray(den, dtype=float)
+        return (num if num.size else np.zeros(1)), den
 
     def filter_frequency_response(self, params: Any, assumptions: Any, freqs_hz: Any) -> np.ndarray:
         """:meth:`filter_response` at ``z = exp(2j pi f T)``, ``T`` = :meth:`sample_time_s`.

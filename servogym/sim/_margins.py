@@ -11,14 +11,17 @@ The open loop of one axis at sample instants is ``L(z) = C(z) * P(z)``:
   ``x[k+1] = Phi x[k] + G_new u[k] + G_old u[k-1]``.
 * ``C(z)``: the linear part of the chip's integer filter (``ChipFamily.filter_response``).
 
-From ``L(e^{jwT})`` on a logarithmic grid up to the Nyquist frequency: the phase margin at
-every gain crossover (the smallest): at the first (the loop's bandwidth) 180 degrees plus the
-phase taken continuous from the low-frequency end, as a Bode plot shows it
-(:func:`continuous_phase`; negative for a loop unstable there), at any later one (a
-resonance peak or a gain rise near Nyquist) the angle between ``L`` and -1; the gain margin at
-every crossing of the negative real axis with ``|L| < 1`` (the smallest: how much more gain
-the loop takes), and the closed-loop bandwidth (the first frequency where ``|L / (1 + L)|``
-falls 3 dB below its low-frequency value).
+Stability is decided from the closed loop's poles, never from margins: the eigenvalues of
+its state matrix (plant states, the held command ``u[k-1]``, the filter's states; the
+spectral radius) or, for a filter of high order (a long PMD DerivativeTime), the number of
+roots of the characteristic polynomial ``den_C den_P + num_C num_P`` outside the circle
+``|z| = 1 - STABILITY_EPS``, counted by the argument principle (:func:`closed_loop_stability`).
+The margins come from ``L(e^{jwT})``: every gain crossover (``|L| = 1``) and every crossing of
+the negative real axis, bracketed on a grid refined until ``|L|`` and the phase change little
+between points and located by Brent's method; each crossover's signed phase margin and delay
+margin, each phase crossover's gain margin (negative where ``|L| > 1``: a gain reduction
+margin), and the closed-loop bandwidth root-found (:class:`Margins` states the conventions;
+docs/simulation.md, "Margins").
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from typing import Any
 import mujoco
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 
 N_FREQUENCIES = 400
 """Points of the logarithmic frequency grid."""
@@ -70,10 +74,14 @@ class LinearPlant:
         return x @ self.c
 
 
-def continuous_model(plant: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def continuous_model(
+    plant: Any, qpos: Any = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(A, B, C, d)`` of the plant from motor current (A) to encoder counts, continuous time.
 
     ``d`` is the state derivative at the operating point with zero current (gravity).
+    The operating point is at rest at ``qpos`` (every joint's position, ``model.nq``
+    values; default the model's reset position ``qpos0``): a holding point under gravity.
 
     The state is ``(qpos, qvel)`` (plus the current, with a current-loop lag); the plant's own
     state and model settings are left as they were.
@@ -82,6 +90,8 @@ def continuous_model(plant: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     nv = model.nv
     data = mujoco.MjData(model)
     mujoco.mj_resetData(model, data)
+    if qpos is not None:
+        data.qpos[:] = np.asarray(qpos, dtype=float)
     saved = (model.opt.timestep, model.opt.integrator, model.opt.disableflags)
     h = 1e-4
     try:
@@ -149,18 +159,102 @@ def linearize(plant: Any, dt: float, latency: float, continuous: Any = None) -> 
     )  # fmt: skip
 
 
+STABILITY_EPS = 1e-9
+"""A closed loop is stable when every pole has ``|z| < 1 - STABILITY_EPS``; a pole on or
+within this distance of the unit circle (a marginal loop: a free rigid body, an
+uncontrolled mode) is not stable. 1e-9 leaves a slow integrator's pole (``1 - 1e-7`` per
+tick at the smallest integral gains) stable while rounding (1e-13 on a simple pole) cannot
+move a pole on the circle inside it."""
+
+EIGEN_MAX_ORDER = 160
+"""Closed loops up to this order are decided by the eigenvalues of their state matrix
+(which gives the spectral radius); higher orders (a PMD DerivativeTime in the tens and
+above) by counting the characteristic polynomial's roots with the argument principle."""
+
+ANALYSIS_LOWEST_FRACTION = 1e-6
+"""Crossovers are searched from this fraction of the sample rate up to the Nyquist
+frequency."""
+
+GRID_LOG_POINTS = 4000
+"""Points of the logarithmic base grid of the crossover search (before refinement)."""
+
+REFINE_LOG_MAGNITUDE = 0.02
+"""Grid intervals where ``ln |L|`` changes by more than this (0.17 dB) are split."""
+
+REFINE_PHASE_RAD = 0.02
+"""Grid intervals where the phase of ``L`` changes by more than this (1.1 degrees) are
+split."""
+
+MAX_GRID_POINTS = 400_000
+"""The refinement stops adding points beyond this size."""
+
+
 @dataclasses.dataclass(frozen=True)
-class Margins:
-    """Stability margins of an open loop.
+class Stability:
+    """Closed-loop stability of the linear loop, decided from its poles.
 
     Attributes:
-        gain_margin_db: Smallest gain margin (dB) over the crossings of the negative real
-            axis with ``|L| < 1``; ``inf`` when there is none.
-        phase_margin_deg: Smallest phase margin (degrees) over the gain crossovers; ``inf``
-            when ``|L|`` never crosses 1.
-        gain_crossover_hz: Frequency of that phase margin (Hz; ``nan`` when none).
-        phase_crossover_hz: Frequency of that gain margin (Hz; ``nan`` when none).
-        bandwidth_hz: Closed-loop -3 dB bandwidth (Hz; ``nan`` when it never drops).
+        stable: Every closed-loop pole has ``|z| < 1 - STABILITY_EPS``.
+        n_unstable: Closed-loop poles with ``|z| >= 1 - STABILITY_EPS``.
+        spectral_radius: Largest pole magnitude (``nan`` when decided by the encirclement
+            count): the factor the loop's slowest-decaying (or fastest-growing) mode is
+            multiplied by per tick.
+        order: Order of the closed loop (plant states, the held command, filter states).
+        method: ``"eigenvalues"`` or ``"encirclement"``.
+    """
+
+    stable: bool
+    n_unstable: int
+    spectral_radius: float
+    order: int
+    method: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Margins:
+    """Stability and stability margins of a closed loop (see docs/simulation.md, "Margins").
+
+    Conventions. ``L = C P`` at ``z = exp(j w T)``. At a gain crossover (``|L| = 1``) let
+    ``phi`` be the phase, in (-180, 180] degrees, that a pure phase lag (``phi > 0``) or lead
+    (``phi < 0``) needs to move ``L`` onto -1 (``phi = angle(L) + 180``, wrapped). Passing a
+    crossover where ``|L|`` falls with frequency (the usual one) by lag, or one where ``|L|``
+    rises (the near side of a resonance peak) by lead, adds two unstable poles; the other
+    way removes two. The signed phase margin of a crossover is ``+|phi|`` when reaching it
+    adds unstable poles (the Nyquist curve passes -1 on the stable side there) and
+    ``-|phi|`` when it removes them (the wrong side); for a falling ``|L|`` it is the
+    classical ``180 + phase``. At a phase crossover (``L = -r``, ``r > 0``) the gain margin
+    is ``-20 log10 r`` dB: positive where ``r < 1`` (the gain may rise this much), negative
+    where ``r > 1`` (a gain reduction of ``|gm|`` dB reaches -1: a conditionally stable loop).
+
+    Attributes:
+        gain_margin_db: Stable loop: the smallest change of the loop gain, up or down, in
+            dB, that destabilises it (the smallest ``|gm|`` over the phase crossovers;
+            ``inf`` when no gain does). Unstable loop: minus the smallest change that makes
+            it stable (``-inf`` when none does); always <= 0.
+        phase_margin_deg: Stable loop: the smallest pure phase rotation (lag or lead, deg)
+            that destabilises it (the smallest ``|phi|``; ``inf`` without gain crossover).
+            Unstable loop: minus the smallest rotation that stabilises it, -180 when none
+            does; always <= 0.
+        gain_crossover_hz: Frequency of the crossover that sets ``phase_margin_deg`` (Hz;
+            ``nan`` when none).
+        phase_crossover_hz: Frequency of the phase crossover that sets ``gain_margin_db``
+            (Hz; ``nan`` when none).
+        bandwidth_hz: Closed-loop -3 dB bandwidth: the lowest frequency where
+            ``|L / (1 + L)|`` is ``1/sqrt(2)`` of its low-frequency value, root-found (Hz;
+            ``nan`` when it never drops).
+        stable: Closed-loop poles all strictly inside the unit circle (:class:`Stability`).
+        spectral_radius: Largest closed-loop pole magnitude (``nan`` when stability was
+            decided by counting encirclements).
+        delay_margin_s: Stable loop: the smallest extra loop delay that destabilises it,
+            ``(phi mod 360) / w`` (rad / (rad/s)) over the crossovers where ``|L|`` falls
+            (``inf`` without one). Unstable loop: the most negative crossover delay margin,
+            else 0.
+        crossovers: Every gain crossover, ascending: ``(hz, signed phase margin deg,
+            delay margin s)``, the delay margin being the signed margin (rad) over ``w``
+            where ``|L|`` falls (``inf`` where it rises and the margin is positive: a delay
+            never destabilises there).
+        phase_crossovers: Every crossing of the negative real axis, ascending, the Nyquist
+            frequency included: ``(hz, gain margin dB)``.
     """
 
     gain_margin_db: float
@@ -168,12 +262,42 @@ class Margins:
     gain_crossover_hz: float
     phase_crossover_hz: float
     bandwidth_hz: float
+    stable: bool = True
+    spectral_radius: float = math.nan
+    delay_margin_s: float = math.inf
+    crossovers: tuple[tuple[float, float, float], ...] = ()
+    phase_crossovers: tuple[tuple[float, float], ...] = ()
 
-    def to_dict(self) -> dict[str, float | None]:
-        """JSON-ready (``inf`` and ``nan`` as ``None``)."""
-        return {
-            k: (float(v) if math.isfinite(v) else None) for k, v in dataclasses.asdict(self).items()
-        }
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: ``inf`` and ``nan`` as ``None``, tuples as lists."""
+
+        def clean(v: Any) -> Any:
+            if isinstance(v, bool):
+                return v
+            if isinstance(v, tuple | list):
+                return [clean(x) for x in v]
+            v = float(v)
+            return v if math.isfinite(v) else None
+
+        return {f.name: clean(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopAnalysis:
+    """The open loop of one set on one linear plant, and its margins.
+
+    Attributes:
+        freqs_hz: Display grid (Hz, ascending): :func:`frequency_grid` with every crossover
+            and the bandwidth added.
+        loop: ``L`` at ``freqs_hz`` (complex).
+        margins: The loop's :class:`Margins`.
+        stability: How stability was decided.
+    """
+
+    freqs_hz: np.ndarray
+    loop: np.ndarray
+    margins: Margins
+    stability: Stability | None = None
 
 
 def frequency_grid(dt: float, n: int = N_FREQUENCIES) -> np.ndarray:
@@ -182,41 +306,354 @@ def frequency_grid(dt: float, n: int = N_FREQUENCIES) -> np.ndarray:
     return np.geomspace(LOWEST_FREQUENCY_FRACTION / dt, 0.999 * nyquist, n)
 
 
-def _interp_at(x0: float, x1: float, y0: float, y1: float) -> float:
-    return x0 if y1 == y0 else x0 + (x1 - x0) * (0.0 - y0) / (y1 - y0)
+# --- closed-loop stability ---------------------------------------------------------------
 
 
-def margins(freqs_hz: np.ndarray, loop: np.ndarray) -> Margins:
-    """Margins of the open loop ``loop`` (complex) sampled at ``freqs_hz`` (ascending)."""
-    mag = np.abs(loop)
+def plant_polynomials(lin: LinearPlant) -> tuple[np.ndarray, np.ndarray]:
+    """``P(z) = num(z^-1) / den(z^-1)`` of a linear plant, ascending powers of ``z^-1``.
+
+    ``den = det(I - z^-1 Phi)`` (degree ``n``, ``den[0] = 1``); ``num`` (degree ``n + 1``,
+    ``num[0] = 0``) from the rank-one identity ``det(zI - Phi + s b c) = det(zI - Phi)
+    (1 + s c (zI - Phi)^-1 b)`` with ``s`` scaling ``b c`` to the size of ``Phi``, so the
+    difference of the two characteristic polynomials carries no cancellation. Every state
+    counts, an unobservable or uncontrollable one too (its pole stays a pole of the loop).
+    """
+    phi = np.asarray(lin.phi, dtype=float)
+    n = phi.shape[0]
+    den = np.real(np.poly(phi))
+    scale = max(1.0, float(np.max(np.abs(phi))))
+
+    def numerator(b: np.ndarray) -> np.ndarray:
+        size = float(np.linalg.norm(b) * np.linalg.norm(lin.c))
+        if size == 0.0:
+            return np.zeros(n + 1)
+        s = scale / size
+        return (np.real(np.poly(phi - s * np.outer(b, lin.c))) - den) / s
+
+    num = np.zeros(n + 2)
+    num[: n + 1] += numerator(np.asarray(lin.g_new, dtype=float))
+    num[1:] += numerator(np.asarray(lin.g_old, dtype=float))
+    num[0] = 0.0  # strictly proper: exactly zero
+    return num, den
+
+
+def characteristic_polynomial(
+    filter_polys: tuple[np.ndarray, np.ndarray], lin: LinearPlant
+) -> np.ndarray:
+    """``den_C den_P + num_C num_P`` in ascending powers of ``x = z^-1`` (``[0] = 1``): the
+    closed-loop poles are ``1 / x`` at its roots (with ``u = C E``, ``E = -y``)."""
+    num_c, den_c = filter_polys
+    num_p, den_p = plant_polynomials(lin)
+    a = np.convolve(den_c, den_p)
+    b = np.convolve(num_c, num_p)
+    out = np.zeros(max(a.size, b.size))
+    out[: a.size] += a
+    out[: b.size] += b
+    return out
+
+
+def closed_loop_matrix(filter_polys: tuple[np.ndarray, np.ndarray], lin: LinearPlant) -> np.ndarray:
+    """State matrix of the closed loop: state ``(x, u[k-1], w)``, ``w`` the filter's states
+    in transposed direct form II (``u = w_1 + num_0 E``, ``E = -c x``)."""
+    num, den = (np.asarray(v, dtype=float) for v in filter_polys)
+    num, den = num / den[0], den / den[0]
+    m = max(num.size, den.size) - 1
+    nn = np.zeros(m + 1)
+    dd = np.zeros(m + 1)
+    nn[: num.size], dd[: den.size] = num, den
+    n0 = nn[0]
+    phi, c = np.asarray(lin.phi, dtype=float), np.asarray(lin.c, dtype=float)
+    g_new, g_old = np.asarray(lin.g_new, dtype=float), np.asarray(lin.g_old, dtype=float)
+    n = phi.shape[0]
+    out = np.zeros((n + 1 + m, n + 1 + m))
+    out[:n, :n] = phi - n0 * np.outer(g_new, c)
+    out[:n, n] = g_old
+    out[n, :n] = -n0 * c
+    if m:
+        w = n + 1
+        out[:n, w] = g_new
+        out[n, w] = 1.0
+        out[w:, :n] = -np.outer(nn[1:] - dd[1:] * n0, c)
+        out[w:, w] = -dd[1:]
+        out[w : w + m - 1, w + 1 :] += np.eye(m - 1)
+    return out
+
+
+def count_roots_inside(coef: np.ndarray, radius: float) -> int | None:
+    """Roots of the polynomial ``sum coef[k] x^k`` with ``|x| < radius``, by the argument
+    principle: its winding number round the circle ``|x| = radius``.
+
+    The polynomial is taken on the circle by an FFT (at least 8 points per degree), and
+    every step whose phase change exceeds 45 degrees is split (16 points each, directly
+    evaluated) until none does, so no turn is missed. ``None`` when the polynomial comes
+    within rounding of zero on the circle (a root on it: neither inside nor outside).
+    """
+    coef = np.trim_zeros(np.asarray(coef, dtype=float), "b")
+    n = coef.size - 1
+    if n <= 0:
+        return 0
+    scaled = coef * radius ** np.arange(n + 1)
+    noise = 1e-12 * float(np.sum(np.abs(scaled)))
+    size = max(4096, 1 << math.ceil(math.log2(8 * (n + 1))))
+    theta = 2 * np.pi * np.arange(size + 1) / size
+    vals = np.fft.ifft(scaled, size) * size
+    vals = np.append(vals, vals[0])
+    for _ in range(40):
+        if np.min(np.abs(vals)) <= noise:
+            return None
+        steps = np.angle(vals[1:] / vals[:-1])
+        bad = np.flatnonzero(np.abs(steps) > np.pi / 4)
+        if not bad.size:
+            return round(float(np.sum(steps)) / (2 * np.pi))
+        frac = np.arange(1, 16) / 16
+        new_t = (theta[bad, None] + (theta[bad + 1] - theta[bad])[:, None] * frac).ravel()
+        new_v = np.polynomial.polynomial.polyval(np.exp(1j * new_t), scaled)
+        theta = np.concatenate([theta, new_t])
+        vals = np.concatenate([vals, new_v])
+        order = np.argsort(theta, kind="stable")
+        theta, vals = theta[order], vals[order]
+    return None
+
+
+def closed_loop_stability(
+    filter_polys: tuple[np.ndarray, np.ndarray], lin: LinearPlant
+) -> Stability:
+    """Stability of the closed loop of a filter ``(num, den)`` (``ChipFamily.filter_polynomials``)
+    on a linear plant: by the eigenvalues of :func:`closed_loop_matrix` up to
+    :data:`EIGEN_MAX_ORDER`, else by :func:`count_roots_inside` on
+    :func:`characteristic_polynomial` (a pole ``z`` with ``|z| >= 1 - eps`` is a root ``x =
+    1/z`` with ``|x| <= 1 / (1 - eps)``). See :data:`STABILITY_EPS`."""
+    num, den = filter_polys
+    order = lin.phi.shape[0] + 1 + max(len(num), len(den)) - 1
+    limit = 1.0 - STABILITY_EPS
+    if order <= EIGEN_MAX_ORDER:
+        poles = scipy.linalg.eigvals(closed_loop_matrix(filter_polys, lin))
+        radius = float(np.max(np.abs(poles)))
+        n_unstable = int(np.sum(np.abs(poles) >= limit))
+        return Stability(n_unstable == 0, n_unstable, radius, order, "eigenvalues")
+    chi = characteristic_polynomial(filter_polys, lin)
+    inside = count_roots_inside(chi, 1.0 / limit)
+    if inside is None:  # a root on the circle: marginal, not stable
+        return Stability(False, 1, math.nan, order, "encirclement")
+    return Stability(inside == 0, inside, math.nan, order, "encirclement")
+
+
+# --- crossovers --------------------------------------------------------------------------
+
+
+def _wrap(angle: np.ndarray | float) -> Any:
+    """An angle (rad) wrapped into (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(angle, dtype=float), 2 * np.pi)
+
+
+def _refined_grid(loop_fn: Any, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(theta, L)``: ``theta`` with every interval split until ``ln |L|`` and the phase
+    change by less than :data:`REFINE_LOG_MAGNITUDE` and :data:`REFINE_PHASE_RAD` across it
+    (or the interval is below 1e-10 of its frequency, or :data:`MAX_GRID_POINTS` is met)."""
+    theta = np.unique(theta)
+    vals = loop_fn(theta)
+    for _ in range(60):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dmag = np.abs(np.diff(np.log(np.abs(vals))))
+            dphase = np.abs(np.angle(vals[1:] / vals[:-1]))
+        wide = np.diff(theta) > 1e-10 * theta[1:]
+        bad = np.flatnonzero(
+            ((dmag > REFINE_LOG_MAGNITUDE) | (dphase > REFINE_PHASE_RAD) | ~np.isfinite(dmag))
+            & wide
+        )
+        if not bad.size or theta.size + 3 * bad.size > MAX_GRID_POINTS:
+            break
+        frac = np.array([0.25, 0.5, 0.75])
+        new_t = (theta[bad, None] + (theta[bad + 1] - theta[bad])[:, None] * frac).ravel()
+        theta = np.concatenate([theta, new_t])
+        vals = np.concatenate([vals, loop_fn(new_t)])
+        order = np.argsort(theta, kind="stable")
+        theta, vals = theta[order], vals[order]
+    return theta, vals
+
+
+def _roots(fn: Any, theta: np.ndarray, values: np.ndarray) -> list[tuple[float, int]]:
+    """``(root, direction)`` of the real function ``fn`` at every sign change of ``values``
+    (``fn`` on ``theta``) by Brent's method; direction +1 for a rise, -1 for a fall."""
+    out = []
+    sign = np.sign(values)
+    for k in np.flatnonzero(sign[:-1] * sign[1:] < 0):
+        a, b = float(theta[k]), float(theta[k + 1])
+        root = scipy.optimize.brentq(fn, a, b, xtol=1e-14 * b, rtol=4 * np.finfo(float).eps)
+        out.append((root, 1 if values[k + 1] > values[k] else -1))
+    for k in np.flatnonzero(values[1:-1] == 0) + 1:  # exactly on a grid point
+        if sign[k - 1] * sign[k + 1] < 0:
+            out.append((float(theta[k]), 1 if values[k + 1] > values[k - 1] else -1))
+    return sorted(out)
+
+
+def frequency_margins(
+    loop_fn: Any, dt: float, stability: Stability, theta_lo: float | None = None
+) -> Margins:
+    """Margins of an open loop given as a function.
+
+    Args:
+        loop_fn: ``theta -> L(exp(j theta))`` for a float array ``theta`` in (0, pi]
+            (``theta = w T``).
+        dt: Sample period ``T`` (s).
+        stability: The closed loop's stability (:func:`closed_loop_stability`).
+        theta_lo: Lowest ``theta`` searched (default ``2 pi`` :data:`ANALYSIS_LOWEST_FRACTION`).
+    """
+    lo = 2 * np.pi * ANALYSIS_LOWEST_FRACTION if theta_lo is None else float(theta_lo)
+    base = np.concatenate([np.geomspace(lo, np.pi, GRID_LOG_POINTS), np.linspace(lo, np.pi, 2048)])
+    theta, vals = _refined_grid(loop_fn, base)
+
+    def scalar(t: float) -> complex:
+        return complex(loop_fn(np.array([t]))[0])
+
+    to_hz = 1.0 / (2 * np.pi * dt)
+    # gain crossovers: ln |L| = 0
     with np.errstate(divide="ignore"):
-        log_mag = np.log10(np.where(mag > 0, mag, 1e-300))
-    phase = continuous_phase(loop)
-    pm, f_pm = math.inf, math.nan
-    for i, k in enumerate(np.flatnonzero(np.diff(np.sign(log_mag)) != 0)):
-        f = _interp_at(freqs_hz[k], freqs_hz[k + 1], log_mag[k], log_mag[k + 1])
-        w = (f - freqs_hz[k]) / (freqs_hz[k + 1] - freqs_hz[k])
-        margin = 180.0 + math.degrees(phase[k] + w * (phase[k + 1] - phase[k]))
-        if i > 0:  # a later crossover (a resonance, a boost near Nyquist): distance from -1
-            margin = abs((margin + 180.0) % 360.0 - 180.0)
-        if margin < pm:
-            pm, f_pm = margin, f
-    gm, f_gm = math.inf, math.nan
-    im = loop.imag
-    for k in np.flatnonzero(np.diff(np.sign(im)) != 0):
-        f = _interp_at(freqs_hz[k], freqs_hz[k + 1], im[k], im[k + 1])
-        w = (f - freqs_hz[k]) / (freqs_hz[k + 1] - freqs_hz[k])
-        re = loop.real[k] + w * (loop.real[k + 1] - loop.real[k])
-        if re < 0 and -re < 1:
-            g = -20 * math.log10(-re) if re != 0 else math.inf
-            if g < gm:
-                gm, f_gm = g, f
-    closed = np.abs(loop / (1 + loop))
-    bw = math.nan
-    below = np.flatnonzero(closed < closed[0] / math.sqrt(2))
-    if below.size:
-        bw = float(freqs_hz[below[0]])
-    return Margins(float(gm), float(pm), float(f_pm), float(f_gm), bw)
+        logmag = np.log(np.abs(vals))
+    crossovers = []
+    phis = []
+
+    def log_mag(t: float) -> float:
+        return math.log(abs(scalar(t)))
+
+    def sin_phase(t: float) -> float:
+        v = scalar(t)
+        return v.imag / abs(v)
+
+    for t, direction in _roots(log_mag, theta, logmag):
+        phi = float(_wrap(np.angle(scalar(t)) + np.pi))
+        signed = -direction * phi  # falling |L| (direction -1): the classical 180 + phase
+        pm = math.degrees(abs(phi)) * (1.0 if signed >= 0 else -1.0)
+        if direction < 0:
+            delay = math.radians(pm) / t * dt
+        else:
+            delay = math.inf if pm >= 0 else math.radians(pm) / t * dt
+        crossovers.append((t * to_hz, pm, delay))
+        phis.append((t, phi, direction))
+    # phase crossovers: Im L = 0 with Re L < 0 (the Nyquist point apart)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        unit = vals / np.abs(vals)
+    inner = theta < np.pi
+    phase_x = []
+    for t, direction in _roots(sin_phase, theta[inner], unit.imag[inner]):
+        v = scalar(t)
+        if v.real < 0:
+            phase_x.append((t, abs(v), 2 * direction))
+    v_pi = scalar(np.pi)
+    if v_pi.real < 0 and abs(v_pi.imag) <= 1e-9 * abs(v_pi):
+        before = unit.imag[inner][-1] if inner.any() else 0.0
+        phase_x.append((np.pi, abs(v_pi), 1 if before < 0 else -1))
+    phase_crossovers = tuple((t * to_hz, -20 * math.log10(r)) for t, r, _ in phase_x)
+
+    if stability.stable:
+        gm, f_gm = math.inf, math.nan
+        for hz, g in phase_crossovers:
+            if abs(g) < gm:
+                gm, f_gm = abs(g), hz
+        pm, f_pm = math.inf, math.nan
+        for (hz, _, _), (_, phi, _) in zip(crossovers, phis, strict=True):
+            if math.degrees(abs(phi)) < pm:
+                pm, f_pm = math.degrees(abs(phi)), hz
+        delays = [float(np.mod(phi, 2 * np.pi)) / t * dt for t, phi, d in phis if d < 0]
+        delay = min(delays, default=math.inf)
+    else:
+        z0 = stability.n_unstable
+        # gain factor k: passing k = 1/r upward changes the unstable count by dz
+        events = [(1.0 / r, dz, t) for t, r, dz in phase_x]
+        best = (math.inf, math.nan)
+        for up in (True, False):
+            z = z0
+            side = sorted((e for e in events if (e[0] > 1) == up), key=lambda e: e[0],
+                          reverse=not up)  # fmt: skip
+            for k, dz, t in side:
+                z += dz if up else -dz
+                if z == 0:
+                    db = abs(20 * math.log10(k))
+                    if db < best[0]:
+                        best = (db, t * to_hz)
+                    break
+        gm, f_gm = -best[0], best[1]
+        best = (180.0, math.nan)
+        for lag in (True, False):
+            z = z0
+            side = sorted(((abs(phi), d, t) for t, phi, d in phis if (phi > 0) == lag))
+            for angle, d, t in side:
+                z += -2 * d if lag else 2 * d
+                if z == 0:
+                    if math.degrees(angle) < best[0]:
+                        best = (math.degrees(angle), t * to_hz)
+                    break
+        pm, f_pm = -best[0], best[1]
+        delay = min([c[2] for c in crossovers if c[2] < 0], default=0.0)
+
+    bandwidth = _bandwidth(scalar, theta, vals) * to_hz
+    return Margins(
+        gain_margin_db=float(gm),
+        phase_margin_deg=float(pm),
+        gain_crossover_hz=float(f_pm),
+        phase_crossover_hz=float(f_gm),
+        bandwidth_hz=float(bandwidth),
+        stable=bool(stability.stable),
+        spectral_radius=float(stability.spectral_radius),
+        delay_margin_s=float(delay),
+        crossovers=tuple(crossovers),
+        phase_crossovers=phase_crossovers,
+    )
+
+
+def _bandwidth(scalar: Any, theta: np.ndarray, vals: np.ndarray) -> float:
+    """The lowest ``theta`` where ``|L / (1 + L)|`` is ``1/sqrt(2)`` of its value at the
+    grid's lowest point, root-found (``nan`` when it never drops that far)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        closed = np.abs(vals / (1 + vals))
+    level = closed[0] / math.sqrt(2)
+    below = np.flatnonzero(closed < level)
+    if not below.size or below[0] == 0:
+        return math.nan
+    k = below[0]
+
+    def fn(t: float) -> float:
+        v = scalar(t)
+        return abs(v / (1 + v)) - level
+
+    return float(scipy.optimize.brentq(fn, theta[k - 1], theta[k], xtol=1e-14 * theta[k]))
+
+
+def analyse_loop(chip: Any, params: Any, assumptions: Any, lin: LinearPlant) -> LoopAnalysis:
+    """Stability, every crossover and the margins of ``params`` closing the loop on ``lin``.
+
+    Args:
+        chip: The chip family (``ChipFamily``).
+        params: The parameter set.
+        assumptions: The chip's assumption switches (``None``: defaults).
+        lin: The plant at the set's sample period (``chip.sample_time_s(params)``) and loop
+            latency (:func:`linearize`).
+    """
+    polys = chip.filter_polynomials(params, assumptions)
+    stability = closed_loop_stability(polys, lin)
+    dt = lin.dt
+
+    num_p, den_p = plant_polynomials(lin)
+    num_p, den_p = num_p[::-1], den_p[::-1]  # descending, for np.polyval
+
+    def search_fn(theta: np.ndarray) -> np.ndarray:
+        # The plant as its polynomials (cheap; accurate to 1e-8 relative down to the
+        # search's lowest frequency, where (1 - z^-1)^2 is 4e-11).
+        x = np.exp(-1j * np.asarray(theta, dtype=float))
+        p = np.polyval(num_p, x) / np.polyval(den_p, x)
+        return chip.filter_response(params, assumptions, 1 / x) * p
+
+    def loop_fn(theta: np.ndarray) -> np.ndarray:
+        z = np.exp(1j * np.asarray(theta, dtype=float))
+        return chip.filter_response(params, assumptions, z) * lin.response(z)
+
+    m = frequency_margins(search_fn, dt, stability)
+    extra = [hz for hz, _, _ in m.crossovers] + [hz for hz, _ in m.phase_crossovers]
+    if math.isfinite(m.bandwidth_hz):
+        extra.append(m.bandwidth_hz)
+    freqs = np.unique(np.concatenate([frequency_grid(dt), np.asarray(extra, dtype=float)]))
+    freqs = freqs[(freqs > 0) & (freqs < 0.5 / dt)]
+    return LoopAnalysis(freqs, loop_fn(2 * np.pi * freqs * dt), m, stability)
 
 
 def continuous_phase(loop: np.ndarray) -> np.ndarray:
@@ -266,16 +703,15 @@ def bode_plot(path: Any, freqs_hz: np.ndarray, loop: np.ndarray, m: Margins, tit
     ax_p.set_xlabel("frequency (Hz)")
     lo, hi = np.nanmin(phase), np.nanmax(phase)
     ax_p.set_ylim(min(lo, -200) - 20, max(hi, 0) + 20)
-    if math.isfinite(m.gain_crossover_hz):
-        ax_m.axvline(m.gain_crossover_hz, color="C2", ls="--", lw=1)
-        ax_p.axvline(m.gain_crossover_hz, color="C2", ls="--", lw=1)
-        ax_p.annotate(f"PM {m.phase_margin_deg:.1f} deg at {m.gain_crossover_hz:.0f} Hz",
-                      (m.gain_crossover_hz, -180 + m.phase_margin_deg), color="C2",
+    for hz, pm, _ in m.crossovers:  # every gain crossover, its signed phase margin
+        ax_m.axvline(hz, color="C2", ls="--", lw=1)
+        ax_p.axvline(hz, color="C2", ls="--", lw=1)
+        at = float(np.interp(hz, freqs_hz, phase))
+        ax_p.annotate(f"PM {pm:.1f} deg at {hz:.0f} Hz", (hz, at), color="C2",
                       xytext=(5, 5), textcoords="offset points")  # fmt: skip
-    if math.isfinite(m.phase_crossover_hz):
-        ax_m.axvline(m.phase_crossover_hz, color="C3", ls="--", lw=1)
-        ax_m.annotate(f"GM {m.gain_margin_db:.1f} dB at {m.phase_crossover_hz:.0f} Hz",
-                      (m.phase_crossover_hz, -m.gain_margin_db), color="C3",
+    for hz, gm in m.phase_crossovers:  # every crossing of the negative real axis
+        ax_m.axvline(hz, color="C3", ls="--", lw=1)
+        ax_m.annotate(f"GM {gm:.1f} dB at {hz:.0f} Hz", (hz, -gm), color="C3",
                       xytext=(5, -12), textcoords="offset points")  # fmt: skip
     if math.isfinite(m.bandwidth_hz):
         ax_m.axvline(m.bandwidth_hz, color="C1", ls=":", lw=1)
@@ -283,9 +719,13 @@ def bode_plot(path: Any, freqs_hz: np.ndarray, loop: np.ndarray, m: Margins, tit
     if limits is not None:
         note = f" (minima {limits[0]:g} dB, {limits[1]:g} deg)"
     fig.suptitle(title + note)
+    verdict = "stable" if m.stable else "unstable"
+    if not m.stable and math.isfinite(m.spectral_radius):
+        verdict += f" (spectral radius {m.spectral_radius:.3g})"
     ax_m.set_title(
-        f"gain margin {_fmt(m.gain_margin_db, 'dB')}, phase margin "
-        f"{_fmt(m.phase_margin_deg, 'deg')}, closed-loop bandwidth {_fmt(m.bandwidth_hz, 'Hz')}",
+        f"{verdict}: gain margin {_fmt(m.gain_margin_db, 'dB')}, phase margin "
+        f"{_fmt(m.phase_margin_deg, 'deg')}, delay margin {_fmt(m.delay_margin_s * 1e3, 'ms')}, "
+        f"closed-loop bandwidth {_fmt(m.bandwidth_hz, 'Hz')}",
         fontsize=9,
     )
     fig.tight_layout()
@@ -295,7 +735,7 @@ def bode_plot(path: Any, freqs_hz: np.ndarray, loop: np.ndarray, m: Margins, tit
 
 def _fmt(x: float, unit: str) -> str:
     if math.isinf(x):
-        return "unbounded"
+        return "unbounded" if x > 0 else "none stabilises"
     if math.isnan(x):
         return "none"
     return f"{x:.3g} {unit}"

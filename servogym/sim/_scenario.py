@@ -17,7 +17,7 @@ import numpy as np
 
 from servogym.chips._family import Move, get_chip
 from servogym.plants import get_plant
-from servogym.sim._margins import Margins, continuous_model, margins, open_loop, plant_response
+from servogym.sim._margins import Margins, analyse_loop, continuous_model, linearize
 from servogym.sim._metrics import EpisodeMetrics
 from servogym.sim._runner import EpisodeResult, ServoLoop
 
@@ -238,14 +238,14 @@ class Evaluator:
             substeps=scenario.substeps,
         )
         self._profiles: dict[tuple, list] = {}
-        self._plant_responses: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self._plant_responses: dict[tuple, Any] = {}
         self._continuous: dict[tuple, Any] = {}
 
     def margins(self, params: Any) -> Margins:
-        """Stability margins of ``params`` on the current plant instance (``_margins``).
+        """Stability and margins of ``params`` on the current plant instance (``_margins``).
 
-        The plant's linearisation is computed once per plant instance, its frequency
-        response once per plant instance, servo period and latency, then reused.
+        The plant's linearisation is computed once per plant instance, its discretisation
+        once per plant instance, servo period and latency, then reused.
         """
         chip = self.scenario.chip
         asm = self.scenario.assumptions or chip.default_assumptions()
@@ -256,11 +256,10 @@ class Evaluator:
         if key not in self._plant_responses:
             if instance not in self._continuous:
                 self._continuous[instance] = continuous_model(self.plant)
-            self._plant_responses[key] = plant_response(
+            self._plant_responses[key] = linearize(
                 self.plant, dt, latency, self._continuous[instance]
             )
-        freqs, plant = self._plant_responses[key]
-        return margins(freqs, open_loop(chip, params, asm, freqs, plant))
+        return analyse_loop(chip, params, asm, self._plant_responses[key]).margins
 
     def profiles(self, params: Any) -> list:
         """The chip profiles of the scenario's moves at this plant's encoder resolution."""

@@ -39,6 +39,7 @@ class Parker6kFamily(ChipFamily):
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
     response_function = staticmethod(_response.filter_response)
+    polynomial_function = staticmethod(_response.filter_polynomials)
 
     def formats_for(self, model: str) -> tuple[str, ...]:
         """JSON and the 6250 form for every model; the axis-prefixed 6K form for the 6K."""

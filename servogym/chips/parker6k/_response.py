@@ -46,3 +46,23 @@ def filter_response(
         integral = g.sgi * period / MICRO * delay / (1 - zi)
     velocity = g.sgv * MICRO / period * (1 - zi)
     return 2.0**15 / fs * (g.sgp + integral + velocity)
+
+
+def filter_polynomials(
+    params: Parker6kParams, assumptions: Parker6kAssumptions
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(num, den)``, ascending powers of ``z^-1``: :func:`filter_response` as
+    ``num(z^-1) / den(z^-1)``."""
+    g = params.gains_at(0)
+    fs, _, _ = scale_of(assumptions)
+    period = params.sample_time_us
+    kv = g.sgv * MICRO / period
+    num = np.array([g.sgp + kv, -kv])
+    den = np.array([1.0])
+    if g.sgi:
+        ki = g.sgi * period / MICRO
+        num = np.convolve(num, [1.0, -1.0])
+        integral = [ki, 0.0] if assumptions.integral_timing == "current" else [0.0, ki]
+        num = num + np.array([*integral, 0.0])
+        den = np.array([1.0, -1.0])
+    return np.trim_zeros(2.0**15 / fs * num, "b"), den

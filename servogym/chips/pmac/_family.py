@@ -32,6 +32,7 @@ class PMACFamily(ChipFamily):
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
     response_function = staticmethod(_response.filter_response)
+    polynomial_function = staticmethod(_response.filter_polynomials)
 
     def native_latency_s(self, params: Any, choice: str) -> float:
         """PMAC-A14 ``"phase_edge"``: one phase period, servo period / (I7002 + 1)."""

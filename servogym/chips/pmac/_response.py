@@ -46,3 +46,25 @@ def filter_response(params: PMACParams, assumptions: PMACAssumptions, z: np.ndar
         params.derivative_gain * params.velocity_loop_scale * 2.0**-7 * (1 - zi)
     )
     return 2.0**-19 * params.proportional_gain * notch_transfer(params, zi) * pid
+
+
+def filter_polynomials(
+    params: PMACParams, assumptions: PMACAssumptions
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(num, den)``, ascending powers of ``z^-1`` (at the filter period, Ixx60
+    included): :func:`filter_response` as ``num(z^-1) / den(z^-1)``."""
+    ks = params.position_loop_scale
+    kv = params.derivative_gain * params.velocity_loop_scale * 2.0**-7
+    pid = np.array([ks + kv, -kv])
+    den = np.array([1.0])
+    if params.integral_gain:
+        ki = ks * params.integral_gain * 2.0**-23
+        pid = np.convolve(pid, [1.0, -1.0])
+        integral = [0.0, ki] if assumptions.integral_timing == "previous" else [ki, 0.0]
+        pid = pid + np.array([*integral, 0.0])
+        den = np.array([1.0, -1.0])
+    n1, n2, d1, d2 = (
+        w / 2.0**22 for w in (params.notch_n1, params.notch_n2, params.notch_d1, params.notch_d2)
+    )
+    num = 2.0**-19 * params.proportional_gain * np.convolve([1.0, n1, n2], pid)
+    return np.trim_zeros(num, "b"), np.trim_zeros(np.convolve(den, [1.0, d1, d2]), "b")

@@ -29,6 +29,7 @@ class PMDFamily(ChipFamily):
     parameter_space = staticmethod(parameter_space)
     new_state = staticmethod(_kernel.new_state)
     response_function = staticmethod(_response.filter_response)
+    polynomial_function = staticmethod(_response.filter_polynomials)
 
     def native_latency_s(self, params: Any, choice: str) -> float:
         """PMD-A13 ``"axis_slot"``: one per-axis slot, the model's minimum sample time."""

@@ -75,3 +75,47 @@ def filter_response(params: PMDParams, assumptions: PMDAssumptions, z: np.ndarra
         if getattr(params, f"biquad{stage}_enable"):
             c = c * biquad_response(params, stage, frac, zi)
     return params.kout / 65536 * c
+
+
+def derivative_polynomial(d: int, mode: str) -> np.ndarray:
+    """:func:`derivative_response` as a polynomial in ``z^-1`` (ascending powers): an FIR.
+
+    ``sample_difference``: ``(1 + ... + z^-(d-1)) (1 - z^-d) / d``, degree ``2d - 1``;
+    ``cycle_difference``: ``(1 - z^-d) / d``, degree ``d``.
+    """
+    if mode == "sample_difference":
+        out = np.zeros(2 * d)
+        out[:d] = 1.0 / d
+        out[d:] = -1.0 / d
+        return out
+    out = np.zeros(d + 1)
+    out[0], out[d] = 1.0 / d, -1.0 / d
+    return out
+
+
+def filter_polynomials(
+    params: PMDParams, assumptions: PMDAssumptions
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(num, den)``, ascending powers of ``z^-1``: :func:`filter_response` as
+    ``num(z^-1) / den(z^-1)``. The integral term puts ``1 - z^-1`` into ``den`` (only when
+    ``Ki`` is not 0); each enabled biquad multiplies both."""
+    a = assumptions
+    deriv = params.kd * derivative_polynomial(params.derivative_time, a.derivative_mode)
+    num = np.zeros(max(deriv.size, 1) + 1)
+    num[: deriv.size] += deriv
+    num[0] += params.kp
+    den = np.array([1.0])
+    if params.ki:
+        num = np.convolve(num, [1.0, -1.0])
+        num[0] += params.ki * 2.0 ** -int(a.integral_shift)
+        den = np.array([1.0, -1.0])
+    frac = 14 if a.biquad_format == "q14" else 15
+    for stage in (1, 2):
+        if getattr(params, f"biquad{stage}_enable"):
+            b0, b1, b2, a1, a2, k = (
+                getattr(params, f"biquad{stage}_{n}") / 2.0**frac
+                for n in ("b0", "b1", "b2", "a1", "a2", "k")
+            )
+            num = np.convolve(num, [k * b0, k * b1, k * b2])
+            den = np.convolve(den, [1.0, a1, a2])
+    return np.trim_zeros(params.kout / 65536 * num, "b"), den
