@@ -447,12 +447,35 @@ def identify_rigid_axis(
     }
 
 
+def _hold_measure(traces: Any, n_hold: int, dt: float) -> dict[str, Any]:
+    """The holding command of a closed-loop hold (its last half), and how still it held."""
+    u = traces.command[:n_hold].astype(float)
+    x = traces.actual[:n_hold].astype(float)
+    tail = slice(n_hold // 2, n_hold)
+    drift = float(abs(x[tail][-1] - x[tail][0])) / (0.5 * n_hold * dt)
+    return {
+        "hold_cmd": float(u[tail].mean()),
+        "hold_spread": float(u[tail].std()),
+        "hold_error": float(x[tail].mean()),
+        "drift_counts_per_s": drift,
+    }
+
+
 @register_tuner
 class ModelBasedTuner(Tuner):
-    """A model-based rule from a short identification experiment.
+    """A model-based rule from a short identification experiment that first holds the load.
 
-    Two moves up and back, each under a saturated PD whose motor limit is 10 % and 20 % of
-    full scale, identify a rigid axis by least squares: acceleration per command count
+    1. *Hold, then move* (motor limit 100 %): a PD holds the axis at its start position
+       for 0.15 s, then moves up and back under the same loop; the least-squares fit of the
+       whole run (below) gives the static load, the command that holds the axis still
+       (gravity; 0 on a horizontal axis), or the mean command of the hold's second half if
+       the fit fails.
+    2. *Move around the hold* (motor limit the holding command + 20 % of full scale, bias the
+       holding command): a saturated PD moves up and back, the command swinging around the
+       one that holds the load, so that a load needing half the motor (an arm at 3 kg) is
+       held and still moved.
+
+    Both moves identify a rigid axis by least squares: acceleration per command count
     (inertia), Coulomb and viscous friction, and the gravity holding command. The PID
     places the closed-loop poles at ``(s + w)^3`` (``p = 3w^2/g``, ``d = 3w/g``,
     ``i = w^3/g``), the derivative sampled at most every ``1/(4w)`` to quiet encoder
@@ -464,32 +487,66 @@ class ModelBasedTuner(Tuner):
     name = "model-based"
     min_budget = 4
 
+    hold_s = 0.15
+    """Duration of the hold before the first move, in seconds."""
+
     def run(self, session: Session) -> None:
         session.evaluate_warm_start()
         ctx = _Context(session)
         amplitude = int(max(200.0, 0.25 * ctx.move_counts))
         half = _ticks(0.25, ctx.dt)
-        profile = _Profile.setpoints([(amplitude, half), (0, half)])
+        n_hold = _ticks(self.hold_s, ctx.dt)
+        move = [(amplitude, half), (0, half)]
         fits = []
-        for level in (0.1, 0.2):
-            m = level * FULL_SCALE
-            p = m / (amplitude / 8)
-            design = ServoDesign(
-                p=p, d=p * 0.01, motor_limit=m, derivative_sample_s=8 * ctx.dt
-            )  # fmt: skip
 
-            def measure(tr: Any) -> dict[str, Any]:
-                return identify_rigid_axis(tr.command, tr.actual, ctx.dt)
+        def identify(tr: Any, start: int) -> dict[str, Any]:
+            return identify_rigid_axis(tr.command[start:], tr.actual[start:], ctx.dt)
 
-            r = ctx.run(design, profile, f"identification move, limit {level:.0%}", measure)
-            if not r["diverged"] and r["accel_gain"] > 0:
+        # 1. Hold at the start position (full motor), then move: the static load.
+        p = 0.1 * FULL_SCALE / (amplitude / 8)
+        design = ServoDesign(p=p, d=p * 0.01, motor_limit=FULL_SCALE - 1,
+                             derivative_sample_s=8 * ctx.dt)  # fmt: skip
+
+        def measure_hold(tr: Any) -> dict[str, Any]:
+            out = _hold_measure(tr, n_hold, ctx.dt)
+            try:
+                out.update(identify(tr, 0))  # the fall into the hold identifies too
+            except TuneError:
+                out["accel_gain"] = 0.0
+            return out
+
+        profile = _Profile.setpoints([(0, n_hold), *move])
+        r = ctx.run(design, profile, "hold the load, then identification move, limit 100%",
+                    measure_hold)  # fmt: skip
+        hold = 0.0
+        if not r["diverged"]:
+            # The fitted holding command; the mean command of the hold if the fit failed
+            # (a hold still swinging at its end reads high or low, the fit does not).
+            hold = r["gravity_cmd"] if r["accel_gain"] > 0 else r["hold_cmd"]
+            hold = min(max(hold, -0.9 * FULL_SCALE), 0.9 * FULL_SCALE)
+            if r["accel_gain"] > 0:
                 fits.append(r)
+        # 2. Move around the holding command, a swing of 20 % of full scale.
+        level = 0.2
+        p = level * FULL_SCALE / (amplitude / 8)
+        limit = min(FULL_SCALE - 1, abs(hold) + level * FULL_SCALE)
+        design = ServoDesign(p=p, d=p * 0.01, bias=hold, motor_limit=limit,
+                             derivative_sample_s=8 * ctx.dt)  # fmt: skip
+        r = ctx.run(
+            design,
+            _Profile.setpoints(move),
+            f"identification move around the hold ({hold / FULL_SCALE:.0%}), swing {level:.0%}",
+            lambda tr: identify(tr, 0),
+        )
+        if not r["diverged"] and r["accel_gain"] > 0:
+            fits.append(r)
         if not fits:
             raise TuneError(
                 "model-based: every identification move diverged or gave no positive "
                 "acceleration gain; the plant cannot be identified as a rigid axis"
             )
-        model = {k: float(np.mean([f[k] for f in fits])) for k in fits[0]}
+        keys = ("accel_gain", "coulomb_cmd", "viscous_cmd", "gravity_cmd", "fit_rms")
+        model = {k: float(np.mean([f[k] for f in fits])) for k in keys}
         g = model["accel_gain"]
         w0 = 1.0 / (6.5 * ctx.dt)
         designs = []

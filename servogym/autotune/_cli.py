@@ -31,6 +31,14 @@ def tune_command(
         list[str] | None,
         typer.Option("--plant-param", help="Fixed plant parameter NAME=VALUE (repeatable)."),
     ] = None,
+    plant_range: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--plant-range",
+            help="Draw a plant parameter from LO..HI (within its legal range) for --robust, "
+            "NAME=LO:HI (repeatable); every end must be one the motor can move.",
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of samplers and plant draws.")] = 0,
     workers: Annotated[
         int | None,
@@ -148,6 +156,7 @@ def tune_command(
     from servogym.autotune._session import TuneError
     from servogym.autotune._tuners import tuner_names
     from servogym.chips._space import ParameterError
+    from servogym.plants import get_plant, parse_plant_ranges
 
     console = Console()
     check_count("--budget", budget)
@@ -181,6 +190,7 @@ def tune_command(
             budget=budget,
             tuner=tuner,
             plant_params=parse_plant_params(plant_param),
+            plant_ranges=parse_plant_ranges(plant_range, get_plant(plant) if plant_range else None),
             seed=seed,
             workers=workers,
             robust=robust,

@@ -183,6 +183,8 @@ class TuneConfig:
         budget: Evaluations.
         tuner: Tuner name.
         plant_params: Fixed plant parameters (``{"payload_kg": 3.0}``).
+        plant_ranges: Ranges the robust draws take parameters from
+            (``{"payload_kg": (0.5, 2.0)}``; ``Scenario.plant_ranges``).
         seed: Seed of the study and the plant draws.
         workers: Evaluation threads (default every core).
         robust: K plant instances per evaluation (1: the nominal plant).
@@ -217,6 +219,7 @@ class TuneConfig:
     budget: int
     tuner: str = "tpe"
     plant_params: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    plant_ranges: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     seed: int = 0
     workers: int | None = None
     robust: int = 1
@@ -269,6 +272,7 @@ class TuneConfig:
             self.chip,
             self.plant,
             plant_values=dict(self.plant_params),
+            plant_ranges=dict(self.plant_ranges),
             moves=self.moves,
             margins=constraints.margins,
         )

@@ -33,8 +33,17 @@ from servogym.plants._base import (
     PlantFamily,
     PlantParam,
     PlantParameterError,
+    parse_plant_ranges,
 )
 from servogym.plants._families import ArmFamily, RotaryFamily, TwoMassFamily, VerticalAxisFamily
+from servogym.plants._feasibility import (
+    PEAK_HEADROOM,
+    MotorFeasibilityError,
+    Need,
+    check_motor,
+    feasible_range,
+    required_peak_effort,
+)
 from servogym.plants._registry import (
     PLANTS,
     describe_plants,
@@ -46,11 +55,14 @@ __all__ = [
     "COMMAND_MAX",
     "COMMAND_MIN",
     "DEFAULT_TIMESTEP_S",
+    "PEAK_HEADROOM",
     "PLANTS",
     "TIMESTEP_MAX_S",
     "TIMESTEP_MIN_S",
     "ArmFamily",
     "AxisIO",
+    "MotorFeasibilityError",
+    "Need",
     "Plant",
     "PlantFamily",
     "PlantParam",
@@ -60,9 +72,13 @@ __all__ = [
     "VerticalAxisFamily",
     "amplifier_alpha",
     "amplifier_current",
+    "check_motor",
     "describe_plants",
     "encoder_counts",
+    "feasible_range",
     "get_plant",
     "motor_torque",
+    "parse_plant_ranges",
     "plant_table_markdown",
+    "required_peak_effort",
 ]

@@ -83,6 +83,11 @@ class PlantParam:
         randomised: Whether :meth:`PlantFamily.sample` draws it by default; ``False`` means
             it is a datasheet value kept at its current setting (nominal unless given).
         integer: Whether the value is an integer count (e.g. ``encoder_counts_per_rev``).
+        sample_range: The part of the legal range :meth:`PlantFamily.sample` draws from by
+            default, ``(low, high)``; ``None``: the whole legal range. Set where part of the
+            legal range is more than the family's default motor can move with the default
+            moves (docs/plants.md, "What the motor can move"), so that default draws are
+            always movable; a ``plant_range`` (``--plant-range``) overrides it.
     """
 
     name: str
@@ -94,6 +99,7 @@ class PlantParam:
     doc: str
     randomised: bool
     integer: bool = False
+    sample_range: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.distribution not in ("uniform", "loguniform"):
@@ -110,6 +116,24 @@ class PlantParam:
             raise ValueError(
                 f"PlantParam {self.name}: a loguniform parameter needs low > 0; got {self.low=}."
             )
+        if self.sample_range is not None:
+            s_lo, s_hi = self.sample_range
+            if not self.low <= s_lo <= self.nominal <= s_hi <= self.high:
+                raise ValueError(
+                    f"PlantParam {self.name}: sample_range must satisfy low <= sample_range[0] "
+                    f"<= nominal <= sample_range[1] <= high; got {self.low=}, "
+                    f"{self.sample_range=}, {self.nominal=}, {self.high=}."
+                )
+
+    @property
+    def sample_low(self) -> float:
+        """Lowest value :meth:`PlantFamily.sample` draws by default."""
+        return self.low if self.sample_range is None else self.sample_range[0]
+
+    @property
+    def sample_high(self) -> float:
+        """Highest value :meth:`PlantFamily.sample` draws by default."""
+        return self.high if self.sample_range is None else self.sample_range[1]
 
     @property
     def type_name(self) -> str:
@@ -354,6 +378,112 @@ class PlantFamily(abc.ABC):
             out[name] = self._by_name[name].validate(value, family=self.name)
         return out
 
+    def validate_ranges(
+        self,
+        ranges: Mapping[str, Any] | None,
+        *,
+        option: str = "plant_range",
+        fixed: Iterable[str] = (),
+    ) -> dict[str, tuple[float, float]]:
+        """Check parameter ranges (``{"payload_kg": (0.5, 2.0)}``) and return them as numbers.
+
+        Args:
+            ranges: ``name -> (low, high)``, each end in the parameter's unit.
+            option: How the caller calls the ranges, for the messages (``--plant-range``).
+            fixed: Names held at a fixed value (``plant_values``), which cannot also vary.
+
+        Returns:
+            ``name -> (low, high)`` in parameter order, floats (ints for integer parameters).
+
+        Raises:
+            PlantParameterError: for an unknown name (with close matches), an end that is not
+                a number, ``low > high``, an end outside the legal range (each message names
+                the option, the value and the legal range), or a name also in ``fixed``.
+        """
+        ranges = {} if ranges is None else ranges
+        if not isinstance(ranges, Mapping):
+            raise PlantParameterError(
+                f"{option} must be a mapping of parameter name to (low, high) for the "
+                f"{self.name!r} plant family; got {type(ranges).__name__}."
+            )
+        fixed = set(fixed)
+        out: dict[str, tuple[float, float]] = {}
+        for name, pair in ranges.items():
+            if name not in self._by_name:
+                raise PlantParameterError(f"{option}: {self._unknown_message(name)}")
+            p = self._by_name[name]
+            legal = f"inside the legal range {p.range_text} ({p.unit})"
+            if (
+                isinstance(pair, str | bytes)
+                or not isinstance(pair, Iterable)
+                or len(pair := tuple(pair)) != 2
+            ):
+                raise PlantParameterError(
+                    f"{option} {name} must be a pair (low, high) {legal}; got {name}={pair!r}."
+                )
+            lo, hi = (
+                int(x) if p.integer and isinstance(x, float) and x.is_integer() else x for x in pair
+            )
+            try:
+                lo, hi = (p.validate(x, family=self.name) for x in (lo, hi))
+            except PlantParameterError:
+                raise PlantParameterError(
+                    f"{option} {name}={_fmt_end(lo)}:{_fmt_end(hi)} must lie {legal}, both ends "
+                    f"{'integers' if p.integer else 'real numbers'}."
+                ) from None
+            if lo > hi:
+                raise PlantParameterError(
+                    f"{option} {name}={_fmt(lo)}:{_fmt(hi)} must have low <= high, {legal}."
+                )
+            if name in fixed:
+                raise PlantParameterError(
+                    f"{option} {name}={_fmt(lo)}:{_fmt(hi)}: {name} is also held at a fixed "
+                    "value (plant_values, --plant-param); give it a value or a range, not both."
+                )
+            out[name] = (lo, hi)
+        return {p.name: out[p.name] for p in self.params if p.name in out}
+
+    def sample_bounds(
+        self,
+        scale: float = 1.0,
+        *,
+        randomise: Iterable[str] | None = None,
+        ranges: Mapping[str, tuple[float, float]] | None = None,
+    ) -> dict[str, tuple[float, float]]:
+        """The range :meth:`sample` draws each parameter from, ``name -> (low, high)``.
+
+        Args:
+            scale: As in :meth:`sample`.
+            randomise: As in :meth:`sample`.
+            ranges: As in :meth:`sample` (validated with :meth:`validate_ranges`).
+        """
+        _check_scale(scale)
+        ranges = self.validate_ranges(ranges)
+        out = {}
+        for p, lo, hi in self._drawn(randomise, ranges):
+            nom = min(max(p.nominal, lo), hi)
+            if p.distribution == "loguniform":
+                a, n, b = math.log(lo), math.log(nom), math.log(hi)
+                low, high = math.exp(n - scale * (n - a)), math.exp(n + scale * (b - n))
+            else:
+                low, high = nom - scale * (nom - lo), nom + scale * (hi - nom)
+            out[p.name] = (min(max(low, lo), hi), min(max(high, lo), hi))
+        return out
+
+    def _drawn(
+        self, randomise: Iterable[str] | None, ranges: Mapping[str, tuple[float, float]]
+    ) -> list[tuple[PlantParam, float, float]]:
+        """The parameters drawn, in parameter order, each with the range it is drawn from."""
+        names = self.randomised() if randomise is None else list(randomise)
+        for name in names:
+            self.param(name)
+        names = set(names) | set(ranges)
+        return [
+            (p, *ranges.get(p.name, (p.sample_low, p.sample_high)))
+            for p in self.params
+            if p.name in names
+        ]
+
     def sample(
         self,
         rng: np.random.Generator,
@@ -361,22 +491,28 @@ class PlantFamily(abc.ABC):
         *,
         randomise: Iterable[str] | None = None,
         base: Mapping[str, Any] | None = None,
+        ranges: Mapping[str, tuple[float, float]] | None = None,
     ) -> dict[str, float | int]:
         """Draw a plant instance.
 
         Each randomised parameter is drawn from its ``distribution`` over a range that
         shrinks towards the nominal value with ``scale``: ``nominal - scale * (nominal -
-        low) .. nominal + scale * (high - nominal)`` (in log space for ``"loguniform"``).
+        low) .. nominal + scale * (high - nominal)`` (in log space for ``"loguniform"``),
+        where ``low .. high`` is the parameter's range in ``ranges`` if given, else its
+        default sampling range (``PlantParam.sample_range``: the legal range, or the part of
+        it the default motor can move), and the nominal value is taken clipped into it.
         Parameters are drawn in parameter order, one ``rng.uniform`` call each, so the same
         generator state gives the same values.
 
         Args:
             rng: The random generator (``np.random.default_rng(seed)``).
-            scale: Fraction of the legal range to sample, ``0 <= scale <= 1``: 1 samples the
-                whole range, 0 gives the nominal value (useful for curricula).
+            scale: Fraction of the sampling range to sample, ``0 <= scale <= 1``: 1 samples
+                the whole range, 0 gives the nominal value (useful for curricula).
             randomise: Names of the parameters to draw, instead of the family's default
                 (:meth:`randomised`).
             base: Values of the parameters that are not drawn (default: nominal).
+            ranges: ``name -> (low, high)``: draw these parameters (randomised or not) from
+                this part of their legal range (:meth:`validate_ranges`).
 
         Returns:
             Every parameter, validated, in parameter order.
@@ -384,22 +520,19 @@ class PlantFamily(abc.ABC):
         Raises:
             TypeError: if ``rng`` is not a ``numpy.random.Generator``.
             ValueError: if ``scale`` is outside ``0 <= scale <= 1``.
-            PlantParameterError: for an unknown name in ``randomise`` or ``base``.
+            PlantParameterError: for an unknown name in ``randomise``, ``base`` or
+                ``ranges``, or an illegal range.
         """
         if not isinstance(rng, np.random.Generator):
             raise TypeError(
                 "rng must be a numpy.random.Generator (np.random.default_rng(seed)); "
                 f"got rng of type {type(rng).__name__}."
             )
-        if isinstance(scale, bool) or not isinstance(scale, numbers.Real) or not 0 <= scale <= 1:
-            raise ValueError(f"scale must satisfy 0 <= scale <= 1; got scale={scale!r}.")
-        names = self.randomised() if randomise is None else list(randomise)
-        for name in names:
-            self.param(name)
+        _check_scale(scale)
+        drawn = self._drawn(randomise, self.validate_ranges(ranges))
         out = self.validate(base)
-        for p in self.params:
-            if p.name in names:
-                out[p.name] = _draw(p, rng, float(scale))
+        for p, lo, hi in drawn:
+            out[p.name] = _draw(p, rng, float(scale), lo, hi)
         return out
 
     # --- building -------------------------------------------------------------------------
@@ -513,18 +646,77 @@ nominal rotary plant creeps at 0.04 rad/s (900 counts/s) under half its Coulomb 
 this, and ``FRICTION_SOLREF``, at most a few counts/s for every nominal plant at 700 us."""
 
 
-def _draw(p: PlantParam, rng: np.random.Generator, scale: float) -> float | int:
-    """One draw of ``p`` over ``scale`` of its range (see :meth:`PlantFamily.sample`)."""
+def _draw(
+    p: PlantParam, rng: np.random.Generator, scale: float, low: float, high: float
+) -> float | int:
+    """One draw of ``p`` over ``scale`` of ``low .. high`` (see :meth:`PlantFamily.sample`)."""
+    centre = min(max(p.nominal, low), high)
     if p.distribution == "loguniform":
-        lo, nom, hi = math.log(p.low), math.log(p.nominal), math.log(p.high)
+        lo, nom, hi = math.log(low), math.log(centre), math.log(high)
         x = math.exp(rng.uniform(nom - scale * (nom - lo), nom + scale * (hi - nom)))
     else:
-        nom = p.nominal
-        x = float(rng.uniform(nom - scale * (nom - p.low), nom + scale * (p.high - nom)))
+        nom = centre
+        x = float(rng.uniform(nom - scale * (nom - low), nom + scale * (high - nom)))
     if scale == 0.0:
-        x = p.nominal  # exactly, after the same one draw (exp(log(x)) need not be x)
-    x = min(max(x, p.low), p.high)  # exp(log(x)) may round just outside the range
+        x = centre  # exactly, after the same one draw (exp(log(x)) need not be x)
+    x = min(max(x, low), high)  # exp(log(x)) may round just outside the range
     return round(x) if p.integer else x
+
+
+def _check_scale(scale: Any) -> None:
+    if isinstance(scale, bool) or not isinstance(scale, numbers.Real) or not 0 <= scale <= 1:
+        raise ValueError(f"scale must satisfy 0 <= scale <= 1; got scale={scale!r}.")
+
+
+def _fmt_end(x: Any) -> str:
+    """A range end as the user gave it: a number in its shortest form, anything else repr."""
+    if isinstance(x, numbers.Real) and not isinstance(x, bool):
+        return _fmt(x)
+    return repr(x)
+
+
+def parse_plant_ranges(
+    items: Iterable[str] | None, family: PlantFamily | None = None, option: str = "--plant-range"
+) -> dict[str, tuple[float, float]]:
+    """``NAME=LO:HI`` texts (``--plant-range payload_kg=0.5:2``) as ``name -> (lo, hi)``.
+
+    Args:
+        items: The texts, one range each.
+        family: Validate against this family (:meth:`PlantFamily.validate_ranges`) when given.
+        option: The option's name, for the messages.
+
+    Raises:
+        PlantParameterError: for malformed text, a repeated name, an end that is not a number
+            (and, with ``family``, everything :meth:`PlantFamily.validate_ranges` refuses),
+            each in one line naming the option and the value.
+    """
+    out: dict[str, tuple[float, float]] = {}
+    for item in items or ():
+        name, sep, rest = str(item).partition("=")
+        lo_text, colon, hi_text = rest.partition(":")
+        name = name.strip()
+        if not sep or not colon or not name or ":" in hi_text:
+            raise PlantParameterError(
+                f"{option} must be NAME=LOW:HIGH (e.g. {option} payload_kg=0.5:2); got {item!r}."
+            )
+        ends = []
+        for text in (lo_text, hi_text):
+            try:
+                ends.append(float(text))
+            except ValueError:
+                raise PlantParameterError(
+                    f"{option} {name}= needs two numbers LOW:HIGH in the parameter's unit; "
+                    f"got {item!r} ({text.strip()!r} is not a number)."
+                ) from None
+        if name in out:
+            raise PlantParameterError(
+                f"{option} {name} is given twice ({_fmt(out[name][0])}:{_fmt(out[name][1])} and "
+                f"{rest.strip()}); give each parameter one range."
+            )
+        out[name] = (ends[0], ends[1])
+    if family is not None:
+        out = family.validate_ranges(out, option=option)
+    return out
 
 
 def _check_timestep(timestep_s: Any) -> float:

@@ -196,6 +196,7 @@ class RotaryFamily(PlantFamily):
             "loguniform",
             "Inertia of the load rigidly coupled to the rotor.",
             randomised=True,
+            sample_range=(1e-6, 4e-4),
         ),
         *_rotary_friction_params((2e-5, 1e-6, 1e-3), (0.01, 1e-4, 0.1), "motor shaft"),
         *_motor_params(),
@@ -259,6 +260,7 @@ class TwoMassFamily(PlantFamily):
             "loguniform",
             "Inertia of the load at the far end of the compliant shaft.",
             randomised=True,
+            sample_range=(1e-5, 9e-4),
         ),
         PlantParam(
             "stiffness_nm_per_rad",
@@ -506,6 +508,7 @@ class ArmFamily(PlantFamily):
             "loguniform",
             "Mass of the payload at the tip of the link (a small sphere).",
             randomised=True,
+            sample_range=(0.05, 2.5),
         ),
         PlantParam(
             "link_mass_kg",

@@ -52,7 +52,8 @@ def describe_plants() -> list[dict[str, Any]]:
 
 
 TABLE_HEADER = (
-    "| Parameter | Type (Unit) | Nominal | Range | Distribution | Randomised | Description |"
+    "| Parameter | Type (Unit) | Nominal | Range | Sampled | Distribution | Randomised "
+    "| Description |"
 )
 
 
@@ -63,6 +64,7 @@ def param_row(p: PlantParam) -> str:
         f"{p.type_name} ({p.unit})",
         _fmt(p.nominal),
         f"{_fmt(p.low)} .. {_fmt(p.high)}",
+        f"{_fmt(p.sample_low)} .. {_fmt(p.sample_high)}",
         p.distribution,
         "yes" if p.randomised else "no",
         p.doc,
@@ -72,6 +74,6 @@ def param_row(p: PlantParam) -> str:
 
 def plant_table_markdown(family: PlantFamily) -> str:
     """The parameter table of a family, as in ``docs/plants.md``."""
-    lines = [TABLE_HEADER, "|" + "---|" * 7]
+    lines = [TABLE_HEADER, "|" + "---|" * 8]
     lines += [param_row(p) for p in family.params]
     return "\n".join(lines)

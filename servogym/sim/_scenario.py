@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from servogym.chips._family import Move, get_chip
-from servogym.plants import get_plant
+from servogym.plants import check_motor, get_plant
 from servogym.sim._margins import Margins, analyse_loop, continuous_model, linearize
 from servogym.sim._metrics import EpisodeMetrics
 from servogym.sim._runner import EpisodeResult, ServoLoop
@@ -138,6 +138,18 @@ class Scenario:
             latency among them.
         margins: Whether each evaluation also computes the loop's stability margins on its
             plant instance (``Evaluation.margins``; the tuners' margin constraints).
+        plant_ranges: ``name -> (low, high)``: the part of a parameter's legal range a
+            randomised draw takes it from (``--plant-range NAME=LO:HI``), instead of the
+            family's default sampling range; a parameter given a range is drawn even if the
+            family does not randomise it by default. Validated on construction
+            (``PlantFamily.validate_ranges``: known name, ``low <= high``, inside the legal
+            range, not also in ``plant_values``).
+        motor_check: Refuse, on construction, a plant the motor cannot move with the moves
+            (``servogym.plants.check_motor``): the nominal instance with ``plant_values``,
+            and every corner of the box of ranges it may draw from (``plant_ranges`` ends,
+            and with ``randomise`` the family's default sampling ranges at
+            ``sample_scale``). The check's stress cases turn it off (an overload on
+            purpose).
     """
 
     chip_model: str
@@ -151,13 +163,30 @@ class Scenario:
     substeps: int | None = None
     assumptions: Any = None
     margins: bool = False
+    plant_ranges: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    motor_check: bool = True
 
     def __post_init__(self) -> None:
         _, model = get_chip(self.chip_model)
         object.__setattr__(self, "chip_model", model)
-        get_plant(self.plant).validate(dict(self.plant_values))
+        family = get_plant(self.plant)
+        base = family.validate(dict(self.plant_values))
+        ranges = family.validate_ranges(
+            self.plant_ranges, option="plant_ranges (--plant-range)", fixed=self.plant_values
+        )
+        object.__setattr__(self, "plant_ranges", ranges)
         if not self.moves:
             object.__setattr__(self, "moves", DEFAULT_MOVES[self.plant])
+        if self.motor_check:
+            box = dict(ranges)
+            if self.randomise:
+                scale = self.sample_scale
+                box = family.sample_bounds(scale, ranges=ranges)
+                for name in self.plant_values:
+                    box.pop(name, None)  # held fixed: the draw keeps the given value
+            what = {n: "plant_values, --plant-param" for n in self.plant_values}
+            what |= {n: "a plant_ranges end, --plant-range" for n in ranges}
+            check_motor(family, base, box, self.moves, what=what)
 
     @property
     def chip(self):
@@ -173,9 +202,16 @@ class Scenario:
         return self.chip.make_params(self.chip_model, values)
 
     def draw_plant(self, rng: np.random.Generator) -> dict[str, float]:
-        """A plant instance: nominal (or drawn when ``randomise``), with the fixed values."""
+        """A plant instance: nominal (or drawn when ``randomise``), with the fixed values.
+
+        A draw takes every randomised parameter, and every one in ``plant_ranges``, from its
+        range (``PlantFamily.sample``); the fixed ``plant_values`` override it.
+        """
         family = get_plant(self.plant)
-        values = family.sample(rng, self.sample_scale) if self.randomise else family.nominal()
+        if self.randomise:
+            values = family.sample(rng, self.sample_scale, ranges=self.plant_ranges)
+        else:
+            values = family.nominal()
         values.update(self.plant_values)
         return values
 

@@ -101,10 +101,11 @@ def test_sample_covers_the_range_and_scale_shrinks_it(name):
     draws = [family.sample(rng, randomise=everything) for _ in range(200)]
     for p in family.params:
         xs = np.array([d[p.name] for d in draws], dtype=float)
-        assert p.low <= xs.min() and xs.max() <= p.high
-        lo, hi = (
-            (np.log(p.low), np.log(p.high)) if p.distribution == "loguniform" else (p.low, p.high)
-        )
+        assert p.sample_low <= xs.min() and xs.max() <= p.sample_high
+        assert p.low <= p.sample_low and p.sample_high <= p.high
+        lo, hi = (p.sample_low, p.sample_high)
+        if p.distribution == "loguniform":
+            lo, hi = np.log(lo), np.log(hi)
         t = (np.log(xs) if p.distribution == "loguniform" else xs) - lo
         assert t.min() < 0.1 * (hi - lo) and t.max() > 0.9 * (hi - lo), p.name
     assert family.sample(rng, 0.0, randomise=everything) == family.nominal()
