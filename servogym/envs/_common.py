@@ -24,12 +24,22 @@ def make_scenario(
     plant_values: Mapping[str, float] | None,
     sample_scale: float,
     family: str | None = None,
+    plant_range: Mapping[str, tuple[float, float]] | None = None,
 ) -> Scenario:
-    """The env's scenario: ``scenario`` itself, or one built from the other arguments."""
+    """The env's scenario: ``scenario`` itself, or one built from the other arguments.
+
+    ``plant_range`` (``name -> (low, high)``) is the part of each parameter's legal range
+    the episodes draw it from (``Scenario.plant_ranges``); validated like ``--plant-range``,
+    and refused in one line when an end is more than the motor can move.
+    """
     if scenario is not None:
         if not isinstance(scenario, Scenario):
             raise TypeError(
                 f"scenario must be a servogym.sim.Scenario; got {type(scenario).__name__}."
+            )
+        if plant_range:
+            raise ValueError(
+                "give plant_range or a scenario, not both (set Scenario.plant_ranges instead)"
             )
         return scenario
     if chip_model is None:
@@ -41,9 +51,16 @@ def make_scenario(
             f"chip_model={chip_model!r} of family {chip.name!r} (its models: "
             f"{', '.join(get_chip_family_models(family))})."
         )
-    get_plant(plant)
+    ranges = get_plant(plant).validate_ranges(
+        plant_range, option="plant_range", fixed=plant_values or ()
+    )
     return Scenario(
-        model, plant, dict(plant_values or {}), randomise=True, sample_scale=sample_scale
+        model,
+        plant,
+        dict(plant_values or {}),
+        randomise=True,
+        sample_scale=sample_scale,
+        plant_ranges=ranges,
     )
 
 

@@ -34,7 +34,9 @@ class PickAndPlace:
     Attributes:
         param: The plant parameter the part changes (``payload_kg``, ``load_inertia_kgm2``).
         empty: Its value without a part; ``None``: the parameter's legal low.
-        part: Range of its value with the part; ``None``: the parameter's legal range.
+        part: Range of its value with the part; ``None``: the scenario's ``plant_ranges``
+            for the parameter (the env's ``plant_range=``), else its default sampling range
+            (``PlantParam.sample_range``: what the default motor can move).
         reach: Pick and place positions are drawn uniformly at ``reach[0] .. reach[1]``
             times the scenario's first move distance from 0, below and above it.
     """
@@ -129,6 +131,7 @@ class ScheduleEnv(gym.Env):
     | `plant` | from the id | str | plant family |
     | `scenario` | `None` | Scenario | overrides chip_model, plant, plant_values, scale |
     | `plant_values` | `{}` | dict (SI) | plant parameters held fixed |
+    | `plant_range` | `{}` | dict (SI) | name -> (low, high) the draws take a parameter from |
     | `sample_scale` | 1.0 | float (1) | width of the plant distribution (0 = nominal) |
     | `n_moves` | 8 | int (moves) | moves per episode (even: whole cycles) |
     | `cycle` | `CYCLES[plant]` | PickAndPlace | what changes between moves |
@@ -151,6 +154,7 @@ class ScheduleEnv(gym.Env):
         *,
         scenario: Scenario | None = None,
         plant_values: Mapping[str, float] | None = None,
+        plant_range: Mapping[str, tuple[float, float]] | None = None,
         sample_scale: float = 1.0,
         n_moves: int = 8,
         cycle: PickAndPlace | None = None,
@@ -170,14 +174,17 @@ class ScheduleEnv(gym.Env):
         self.render_mode = render_mode
         self.n_moves = n_moves
         self.scenario = make_scenario(
-            chip_model, plant, scenario, plant_values, sample_scale, family
+            chip_model, plant, scenario, plant_values, sample_scale, family, plant_range
         )
         self.chip = self.scenario.chip
         self.plant_family = get_plant(self.scenario.plant)
         self.cycle = cycle if cycle is not None else cycle_for(self.scenario.plant)
         p = self.plant_family.param(self.cycle.param)
         self._empty = p.low if self.cycle.empty is None else p.validate(self.cycle.empty)
-        part = self.cycle.part if self.cycle.part is not None else (p.low, p.high)
+        # The part's range: the cycle's, else the scenario's plant range for the parameter,
+        # else its default sampling range (what the default motor can move).
+        default_part = self.scenario.plant_ranges.get(p.name, (p.sample_low, p.sample_high))
+        part = self.cycle.part if self.cycle.part is not None else default_part
         self._part = (p.validate(part[0]), p.validate(part[1]))
         self.defaults = self.scenario.default_params()
         self.plant = self.plant_family.build(self.scenario.draw_plant(np.random.default_rng(0)))

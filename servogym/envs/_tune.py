@@ -82,6 +82,7 @@ class TuneEnv(gym.Env):
     | `plant` | from the id | str | plant family |
     | `scenario` | `None` | Scenario | overrides chip_model, plant, plant_values, scale |
     | `plant_values` | `{}` | dict (SI) | plant parameters held fixed |
+    | `plant_range` | `{}` | dict (SI) | name -> (low, high) the draws take a parameter from |
     | `sample_scale` | 1.0 | float (1) | width of the plant distribution (0 = nominal) |
     | `params` | tunable registers | tuple[str] | registers the action sets |
     | `fixed` | `{}` | dict (int) | registers held at a value |
@@ -104,6 +105,7 @@ class TuneEnv(gym.Env):
         *,
         scenario: Scenario | None = None,
         plant_values: Mapping[str, float] | None = None,
+        plant_range: Mapping[str, tuple[float, float]] | None = None,
         sample_scale: float = 1.0,
         params: tuple[str, ...] | None = None,
         fixed: Mapping[str, Any] | None = None,
@@ -120,7 +122,7 @@ class TuneEnv(gym.Env):
             )
         self.render_mode = render_mode
         self.scenario = make_scenario(
-            chip_model, plant, scenario, plant_values, sample_scale, family
+            chip_model, plant, scenario, plant_values, sample_scale, family, plant_range
         )
         self.chip = self.scenario.chip
         self.plant_family = get_plant(self.scenario.plant)
