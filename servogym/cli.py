@@ -403,6 +403,19 @@ def check(
     min_phase_margin: Annotated[
         float, typer.Option("--min-phase-margin", help="Smallest phase margin (deg).")
     ] = 30.0,
+    max_following_error: Annotated[
+        float | None,
+        typer.Option(
+            "--max-following-error",
+            help="Largest following error in any case (counts) [default: 1 % of the longest move].",
+        ),
+    ] = None,
+    max_saturation: Annotated[
+        float,
+        typer.Option(
+            "--max-saturation", help="Largest fraction of ticks at the motor limit in any case."
+        ),
+    ] = 0.05,
     out: Annotated[
         Path | None,
         typer.Option(help="Folder for bode.png and check.json [default: PARAMS_check/]."),
@@ -412,8 +425,11 @@ def check(
     """Check a parameter set before it goes onto a drive: stress set and loop margins.
 
     Re-simulates the set with the fine reference integration, every loop-latency
-    assumption, the load at +-20 % and friction at +-50 %, and computes gain margin, phase
-    margin and closed-loop bandwidth. Exit code 0 when it passes, 1 when it fails.
+    assumption, the load at +-20 % and friction at +-50 %; in every case, decides the
+    loop's stability from its closed-loop poles and computes gain margin, phase margin and
+    closed-loop bandwidth at each holding point. The set passes when every case is stable,
+    within the following-error and saturation limits and above the margin minima. Exit
+    code 0 when it passes, 1 when it fails.
     """
     from servogym._files import write_atomic
     from servogym.autotune._cli import check_table
@@ -427,7 +443,10 @@ def check(
         if chip is not None and chip.upper() != loaded.params.model.upper():
             _fail(f"--chip {chip} differs from the params file's chip model {loaded.params.model}")
         limits = CheckLimits(
-            min_gain_margin_db=min_gain_margin, min_phase_margin_deg=min_phase_margin
+            min_gain_margin_db=min_gain_margin,
+            min_phase_margin_deg=min_phase_margin,
+            max_following_error=max_following_error,
+            max_saturation=max_saturation,
         )
         scenario = Scenario(
             loaded.params.model, plant, plant_values=_key_values(plant_param, "--plant-param"),

@@ -301,6 +301,9 @@ def tune_command(
         )
     if report is not None:
         console.print(check_table(report))
+        line = fallback_line(report)
+        if line:
+            console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
     if summary["n_trials"] < budget:
         console.print(
             f"[cyan]note:[/cyan] the {tuner} procedure finished after {summary['n_trials']} of "
@@ -324,25 +327,44 @@ def tune_command(
 
 
 def check_table(report: dict):
-    """The check's stress cases and margins, printed after the default-vs-tuned table."""
+    """The check's stress cases, each with its margins and verdict, and the worst margins
+    with their cases; printed after the default-vs-tuned table and by ``servogym check``."""
     from rich.table import Table
 
-    m = report["margins"]
+    worst = report.get("worst") or {}
+    limits = report["limits"]
     verdict = "[green]passed[/green]" if report["passed"] else "[red]FAILED[/red]"
+
+    def w(key: str, unit: str) -> str:
+        if key not in worst:
+            return "none"
+        return f"{_margin(worst[key]['value'], unit)} ({worst[key]['case']})"
+
     title = (
-        f"check {verdict}: gain margin {_margin(m['gain_margin_db'], 'dB')}, phase margin "
-        f"{_margin(m['phase_margin_deg'], 'deg')}, closed-loop bandwidth "
-        f"{_margin(m['bandwidth_hz'], 'Hz')} (minima {report['limits']['min_gain_margin_db']:g} "
-        f"dB, {report['limits']['min_phase_margin_deg']:g} deg)"
+        f"check {verdict}: worst gain margin {w('gain_margin_db', 'dB')}, worst phase margin "
+        f"{w('phase_margin_deg', 'deg')}, lowest bandwidth {w('bandwidth_hz', 'Hz')} "
+        f"(minima {limits['min_gain_margin_db']:g} dB, {limits['min_phase_margin_deg']:g} deg; "
+        f"saturation at most {100 * limits['max_saturation']:g} % of ticks)"
     )
     table = Table(title=title, title_justify="left")
     for col in ("case (RK4 reference)", "loop latency", "cost", "diverged",
-                "max following error (counts)"):  # fmt: skip
+                "max following error (counts)", "saturation", "stable", "gain margin",
+                "phase margin", "verdict"):  # fmt: skip
         table.add_column(col, justify="left" if col.startswith("case") else "right")
     for c in report["cases"]:
-        table.add_row(c["name"], c["loop_latency"], _fmt(c["cost"]),
-                      c["divergence_reason"] if c["diverged"] else "no",
-                      _fmt(c["max_following_error"]))  # fmt: skip
+        m = c.get("margins") or {}
+        fe = _fmt(c["max_following_error"])
+        if c.get("following_error_limit") is not None:
+            fe += f" / {_fmt(c['following_error_limit'])}"
+        table.add_row(
+            c["name"], c["loop_latency"], _fmt(c["cost"]),
+            c["divergence_reason"] if c["diverged"] else "no",
+            fe, f"{100 * c['saturation_fraction']:.1f} %",
+            "-" if not m else ("yes" if m.get("stable") else "[red]NO[/red]"),
+            _margin(m.get("gain_margin_db"), "dB") if m else "-",
+            _margin(m.get("phase_margin_deg"), "deg") if m else "-",
+            "[green]ok[/green]" if c.get("passed", True) else "[red]fail[/red]",
+        )  # fmt: skip
     return table
 
 
@@ -350,14 +372,25 @@ def _margin(x: float | None, unit: str) -> str:
     return "unbounded" if x is None else f"{x:.3g} {unit}"
 
 
+def fallback_line(report: dict) -> str | None:
+    """The warning printed when the written set is not the tuner's best trial."""
+    fb = report.get("fallback")
+    if not fb:
+        return None
+    ratio = fb.get("cost_ratio")
+    worse = f", {ratio:.3g}x the best trial's cost" if ratio is not None else ""
+    return (
+        f"the best trial {fb['best_trial']} (cost {fb['best_cost']:.4g}) failed the check "
+        f"({'; '.join(fb['best_failures'])}); the set written is trial {fb['written_trial']}, "
+        f"cost {fb['written_cost']:.4g}{worse}, which passed."
+    )
+
+
 def summary_heading(summary: dict) -> str:
     """The line above the table: what was tuned, where, how."""
-    n_plants = summary["problem"]["n_plants"]
-    where = (
-        "nominal plant"
-        if n_plants == 1
-        else f"{summary['problem']['robust_mode']} over {n_plants} plant instances"
-    )
+    from servogym.autotune._report import plant_description
+
+    where = plant_description(summary["problem"])
     return (
         f"{summary['chip_model']} on {summary['plant']} ({where}): chip defaults vs "
         f"{summary['tuner']} after {summary['n_trials']} evaluations"

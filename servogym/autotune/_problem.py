@@ -95,7 +95,12 @@ class Outcome:
         saturation_fraction: Largest saturation fraction over instances.
         rms_command, chatter, settling_time: Largest over moves and instances.
         gain_margin_db, phase_margin_deg: Smallest loop margins over instances (``inf``:
-            unbounded, or not computed).
+            unbounded, or not computed; <= 0 for a loop that is unstable).
+        delay_margin_s: Smallest delay margin over instances (s; ``inf`` as above).
+        bandwidth_hz: Lowest closed-loop bandwidth over instances (Hz; ``nan``: not
+            computed).
+        n_unstable: Instances on which the loop's closed-loop poles are not all inside the
+            unit circle (``servogym.sim._margins``).
     """
 
     values: dict[str, int]
@@ -109,6 +114,9 @@ class Outcome:
     settling_time: float
     gain_margin_db: float = math.inf
     phase_margin_deg: float = math.inf
+    delay_margin_s: float = math.inf
+    bandwidth_hz: float = math.nan
+    n_unstable: int = 0
 
     def objective(self, name: str) -> float:
         """The value of one of :data:`OBJECTIVES`."""
@@ -126,16 +134,23 @@ class Outcome:
     def from_attrs(cls, attrs: Mapping[str, Any]) -> Outcome:
         """Inverse of :meth:`to_attrs`."""
         names = [f.name for f in dataclasses.fields(cls) if f.name not in _MARGIN_FIELDS]
-        kw = {n: attrs[n] for n in names}
-        for name in _MARGIN_FIELDS:  # absent in studies from before the margins
+        kw = {n: attrs[n] for n in names if n != "n_unstable"}
+        kw["n_unstable"] = int(attrs.get("n_unstable", 0))  # absent in older studies
+        for name, missing in _MARGIN_FIELDS.items():  # absent in studies from before them
             value = attrs.get(name)
-            kw[name] = math.inf if value is None else float(value)
+            kw[name] = missing if value is None else float(value)
         kw["costs"] = tuple(kw["costs"])
         kw["values"] = {k: int(v) for k, v in kw["values"].items()}
         return cls(**kw)
 
 
-_MARGIN_FIELDS = ("gain_margin_db", "phase_margin_deg")
+_MARGIN_FIELDS = {
+    "gain_margin_db": math.inf,
+    "phase_margin_deg": math.inf,
+    "delay_margin_s": math.inf,
+    "bandwidth_hz": math.nan,
+}
+"""The margin fields of :class:`Outcome` and their value when not computed (JSON: null)."""
 
 MARGIN_CONSTRAINT_BOUND = 1000.0
 """Margin constraint values are clipped to +-this (Optuna's samplers need finite values)."""
@@ -148,6 +163,12 @@ def aggregate(values: Mapping[str, int], evaluations: Sequence[Evaluation], mode
     return Outcome(
         gain_margin_db=min((m.gain_margin_db for m in computed), default=math.inf),
         phase_margin_deg=min((m.phase_margin_deg for m in computed), default=math.inf),
+        delay_margin_s=min((m.delay_margin_s for m in computed), default=math.inf),
+        bandwidth_hz=min(
+            (m.bandwidth_hz for m in computed if not math.isnan(m.bandwidth_hz)),
+            default=math.nan,
+        ),
+        n_unstable=sum(not m.stable for m in computed),
         values=dict(values),
         cost=robust_cost(evaluations, mode),
         costs=tuple(float(e.cost) for e in evaluations),

@@ -60,6 +60,18 @@ def export_names(family: Any, model: str | None = None) -> dict[str, str]:
     return out
 
 
+def plant_description(problem: dict) -> str:
+    """The plant a run used: ``nominal plant``, its fixed values, or the robust draws."""
+    fixed = ", ".join(f"{k}={v:g}" for k, v in problem.get("plant_values", {}).items())
+    ranges = problem.get("plant_ranges") or {}
+    if problem["n_plants"] == 1:
+        return f"plant {fixed}" if fixed else "nominal plant"
+    where = f"{problem['robust_mode']} over {problem['n_plants']} plant instances"
+    if ranges:
+        where += " with " + ", ".join(f"{k} in [{lo:g}, {hi:g}]" for k, (lo, hi) in ranges.items())
+    return where + (f", {fixed}" if fixed else "")
+
+
 def evaluation_metrics(evaluations: list[Evaluation], mode: str) -> dict[str, float]:
     """Figures of a set over the plant instances: the aggregated cost, worst of the rest."""
     from servogym.sim._scenario import robust_cost
@@ -92,7 +104,10 @@ def write_trials_csv(trials: list[Any], names: tuple[str, ...], path: Path) -> N
 
 
 def trials_csv_text(trials: list[Any], names: tuple[str, ...]) -> str:
-    """Every trial: number, kind, state, objective values, constraints, registers, u."""
+    """Every trial: number, kind, state, objective values, feasibility and the constraints
+    it failed (``;``-separated names of :meth:`TuneProblem.constraint_values`), outcome
+    figures, loop margins (worst over the plant instances; empty: unbounded or not
+    computed), registers, unit-cube coordinates."""
     registers: list[str] = []
     for t in trials:
         for key in t.user_attrs.get("registers", {}):
@@ -101,9 +116,10 @@ def trials_csv_text(trials: list[Any], names: tuple[str, ...]) -> str:
     n_obj = max((len(t.values) for t in trials if t.values), default=1)
     value_cols = ["cost"] + [f"objective_{i}" for i in range(1, n_obj)]
     outcome_cols = ["n_diverged", "max_following_error", "saturation_fraction",
-                    "rms_command", "chatter", "settling_time"]  # fmt: skip
+                    "rms_command", "chatter", "settling_time", "n_unstable", "gain_margin_db",
+                    "phase_margin_deg", "delay_margin_s", "bandwidth_hz"]  # fmt: skip
     header = (
-        ["number", "kind", "state", *value_cols, "feasible", *outcome_cols]
+        ["number", "kind", "state", *value_cols, "feasible", "failed_constraints", *outcome_cols]
         + registers
         + [UNIT_PREFIX + n for n in names]
         + ["duration_s", "note"]
@@ -120,13 +136,18 @@ def trials_csv_text(trials: list[Any], names: tuple[str, ...]) -> str:
         note = t.user_attrs.get("note") or t.user_attrs.get("error") or ""
         w.writerow(
             [t.number, t.user_attrs.get("kind", ""), t.state.name, *values,
-             is_feasible(t) if t.values else ""]
-            + [outcome.get(c, "") for c in outcome_cols]
+             is_feasible(t) if t.values else "",
+             ";".join(k for k, v in t.constraints.items() if v > 0) if t.values else ""]
+            + [_cell(outcome.get(c)) for c in outcome_cols]
             + [regs.get(r, "") for r in registers]
             + [t.params.get(UNIT_PREFIX + n, "") for n in names]
             + [duration, note]
         )  # fmt: skip
     return fh.getvalue()
+
+
+def _cell(value: Any) -> Any:
+    return "" if value is None else value
 
 
 def convergence_figure(trials: list[Any], default_cost: float, title: str):
@@ -304,8 +325,11 @@ def write_outputs(
         files["bode_plot"] = "bode.png"
     reports["trials.csv"] = trials_csv_text(result.trials, problem.space.names)
     files["trials"] = "trials.csv"
+    shown = plant_description(problem.describe())
+    if problem.n_plants > 1:  # the traces are the nominal instance's
+        shown = f"nominal instance; tuned {shown}"
     title = (
-        f"{model} on {problem.scenario.plant} (nominal plant): chip defaults vs "
+        f"{model} on {problem.scenario.plant} ({shown}): chip defaults vs "
         f"{result.tuner} (cost {default_metrics['cost']:.3g} -> {tuned_metrics['cost']:.3g})"
     )
     reports["response.png"] = _png(

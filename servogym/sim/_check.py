@@ -10,10 +10,16 @@ reference integration (RK4, :data:`~servogym.sim.REFERENCE_SUBSTEPS` substeps pe
 * every friction parameter at -50 % and +50 % together,
 * and any extra plant instances given (a robust run's draws),
 
-and computes the loop's stability margins from the plant linearised at its operating point
-and the chip filter's linear response (``_margins``). A set fails when it diverges in any case
-or when a margin falls below its minimum (defaults 6 dB and 30 degrees); each failure names
-the check and by how much. docs/simulation.md, "The check", states the rules.
+and, for every case, the loop's stability (decided exactly, from the closed loop's poles)
+and margins, from that case's plant linearised at each point where the moves hold it still
+(``_operating``) and the chip filter's linear response (``_margins``).
+
+A set passes only when every case meets every limit: no divergence, a stable loop, the
+following error and the saturation within their limits (defaults: 1 % of the longest move,
+5 % of ticks at the motor limit; a limit cycle saturates), the gain and phase margins above
+their minima (defaults 6 dB and 30 degrees). Each failure names the case, the check and by
+how much; the report gives each case's margins and the worst with its case.
+docs/simulation.md, "The check", states the rules.
 """
 
 from __future__ import annotations
@@ -28,14 +34,8 @@ from typing import Any
 
 from servogym.chips._space import ParameterError
 from servogym.plants import get_plant
-from servogym.sim._margins import (
-    Margins,
-    bode_plot,
-    continuous_model,
-    margins,
-    open_loop,
-    plant_response,
-)
+from servogym.sim._margins import Margins, bode_plot
+from servogym.sim._operating import OperatingMargins, operating_margins
 from servogym.sim._runner import REFERENCE_SUBSTEPS
 from servogym.sim._scenario import Evaluator, Scenario
 
@@ -50,6 +50,9 @@ class CheckLimits:
         load_spread: Relative change of the load (inertia or payload) in the stress set.
         friction_spread: Relative change of every friction parameter in the stress set.
         reference_substeps: RK4 substeps per servo period of the reference integration.
+        max_following_error: Largest following error in any case (counts); ``None``: 1 %
+            of the longest move of the scenario (as ``servogym tune``'s constraint).
+        max_saturation: Largest fraction of ticks at the motor limit in any case.
     """
 
     min_gain_margin_db: float = 6.0
@@ -57,13 +60,24 @@ class CheckLimits:
     load_spread: float = 0.2
     friction_spread: float = 0.5
     reference_substeps: int = REFERENCE_SUBSTEPS
+    max_following_error: float | None = None
+    max_saturation: float = 0.05
 
     def __post_init__(self) -> None:
+        fe = self.max_following_error
+        if fe is not None and not (
+            isinstance(fe, int | float) and not isinstance(fe, bool) and 0 < fe < math.inf
+        ):
+            raise ParameterError(
+                "max_following_error must be > 0 counts (or None for 1 % of the longest "
+                f"move); got max_following_error={fe!r}."
+            )
         for name, low, high in (
             ("min_gain_margin_db", 0.0, 60.0),
             ("min_phase_margin_deg", 0.0, 90.0),
             ("load_spread", 0.0, 0.9),
             ("friction_spread", 0.0, 0.9),
+            ("max_saturation", 0.0, 1.0),
         ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and low <= value <= high):
@@ -92,6 +106,10 @@ class CaseResult:
         divergence_time_s: When, from the start of the moves (s; ``nan`` when it did not).
         max_following_error: Largest following error (counts).
         saturation_fraction: Fraction of ticks at the motor limit.
+        following_error_limit: The case's following-error limit (counts).
+        margins: The loop's margins on the case's plant at its worst holding point.
+        holding_point: That point (offset from the start position, joint units).
+        failures: Each limit the case misses, naming it and by how much.
     """
 
     name: str
@@ -103,12 +121,26 @@ class CaseResult:
     divergence_time_s: float
     max_following_error: float
     saturation_fraction: float
+    following_error_limit: float = math.nan
+    margins: Margins | None = None
+    holding_point: float = 0.0
+    failures: tuple[str, ...] = ()
+
+    @property
+    def passed(self) -> bool:
+        """Whether the case meets every limit."""
+        return not self.failures
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
-        d = dataclasses.asdict(self)
-        if not math.isfinite(d["divergence_time_s"]):
-            d["divergence_time_s"] = None
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        d["plant_changes"] = dict(self.plant_changes)
+        d["margins"] = None if self.margins is None else self.margins.to_dict()
+        d["failures"] = list(self.failures)
+        d["passed"] = self.passed
+        for k in ("divergence_time_s", "following_error_limit"):
+            if not math.isfinite(d[k]):
+                d[k] = None
         return d
 
 
@@ -118,14 +150,20 @@ class CheckReport:
 
     Attributes:
         passed: Whether the set passed every check.
-        failures: One line per failed check, naming it and by how much.
-        cases: The stress set's results, the reference first.
-        margins: Margins at the scenario's own loop latency.
-        margins_by_latency: Margins at each ``loop_latency`` choice.
+        failures: One line per failed check, naming the case, the check and by how much.
+        cases: The stress set's results, the reference first, each with its margins.
+        margins: Margins of the reference case (the scenario's own plant and latency).
+        margins_by_latency: Margins at each ``loop_latency`` choice (nominal plant).
+        worst: The worst of each margin over the cases, with its case:
+            ``{"gain_margin_db": {"value": ..., "case": ...}, ...}`` for the gain and
+            phase margins, the delay margin and the bandwidth (the lowest).
         limits: The limits applied.
         elapsed_s: Wall time of the check (s).
         candidates: When a tuner's result was chosen by checking its best trials in turn:
-            each trial checked, whether it passed and why not.
+            each trial checked, its cost, whether it passed and why not.
+        fallback: When the set written is not the tuner's best trial (which failed): the
+            best trial, its cost and failures, the written trial and its cost, and their
+            ratio; ``None`` otherwise.
     """
 
     passed: bool
@@ -136,6 +174,8 @@ class CheckReport:
     limits: CheckLimits
     elapsed_s: float
     candidates: tuple[dict[str, Any], ...] = ()
+    worst: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    fallback: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (for best_params.json's provenance and check.json)."""
@@ -143,11 +183,16 @@ class CheckReport:
             "passed": self.passed,
             "failures": list(self.failures),
             "margins": self.margins.to_dict(),
+            "worst": {
+                k: {"value": v["value"] if math.isfinite(v["value"]) else None, "case": v["case"]}
+                for k, v in self.worst.items()
+            },
             "margins_by_latency": {k: m.to_dict() for k, m in self.margins_by_latency.items()},
             "cases": [c.to_dict() for c in self.cases],
             "limits": dataclasses.asdict(self.limits),
             "elapsed_s": self.elapsed_s,
             "candidates": list(self.candidates),
+            "fallback": self.fallback,
         }
 
 
@@ -190,8 +235,18 @@ def stress_cases(scenario: Scenario, limits: CheckLimits) -> list[_Case]:
     return cases
 
 
-def _run_case(scenario: Scenario, params: Any, case: _Case, substeps: int) -> CaseResult:
+def following_error_limit(scenario: Scenario, counts_per_unit: float, limits: CheckLimits):
+    """The following-error limit in counts: the given one, or 1 % of the longest move."""
+    if limits.max_following_error is not None:
+        return float(limits.max_following_error)
+    return 0.01 * max(abs(m.distance) for m in scenario.moves) * counts_per_unit
+
+
+def _run_case(
+    scenario: Scenario, params: Any, case: _Case, limits: CheckLimits
+) -> tuple[CaseResult, OperatingMargins]:
     asm = scenario.assumptions or scenario.chip.default_assumptions()
+    case_asm = dataclasses.replace(asm, loop_latency=case.loop_latency)
     sc = dataclasses.replace(
         scenario,
         plant_values={**scenario.plant_values, **case.plant_changes},
@@ -199,15 +254,22 @@ def _run_case(scenario: Scenario, params: Any, case: _Case, substeps: int) -> Ca
         motor_check=False,  # a stress case may overload the motor on purpose
         randomise=False,
         integrator="rk4",
-        substeps=substeps,
-        assumptions=dataclasses.replace(asm, loop_latency=case.loop_latency),
+        substeps=limits.reference_substeps,
+        assumptions=case_asm,
+        margins=False,
     )
-    ev = Evaluator(sc).evaluate(params)
+    evaluator = Evaluator(sc)
+    ev = evaluator.evaluate(params)
     t_div = math.nan
     if ev.diverged:
         t_div = sum(m.n_ticks * m.dt for m in ev.metrics)
     last = ev.metrics[-1]
-    return CaseResult(
+    op = operating_margins(
+        sc.chip, params, case_asm, evaluator.plant, sc.moves,
+        limits=(limits.min_gain_margin_db, limits.min_phase_margin_deg),
+    )  # fmt: skip
+    fe_limit = following_error_limit(sc, evaluator.plant.io.counts_per_unit, limits)
+    result = CaseResult(
         name=case.name,
         loop_latency=case.loop_latency,
         plant_changes=dict(case.plant_changes),
@@ -217,24 +279,91 @@ def _run_case(scenario: Scenario, params: Any, case: _Case, substeps: int) -> Ca
         divergence_time_s=t_div,
         max_following_error=float(ev.max_following_error),
         saturation_fraction=float(ev.saturation_fraction),
+        following_error_limit=fe_limit,
+        margins=op.margins,
+        holding_point=op.points[op.worst],
     )
+    unit = get_plant(scenario.plant).joint_unit
+    failures = case_failures(result, op, limits, unit)
+    return dataclasses.replace(result, failures=tuple(failures)), op
+
+
+def case_failures(
+    r: CaseResult, op: OperatingMargins, limits: CheckLimits, unit: str = ""
+) -> list[str]:
+    """Each limit one case misses: ``"<case>: <check> <value> <relation> <limit> (<gap>)"``."""
+    out = []
+    if r.diverged:
+        out.append(f"{r.name}: diverged ({r.divergence_reason}) at t = {r.divergence_time_s:.4g} s")
+    fe, fe_max = r.max_following_error, r.following_error_limit
+    if fe > fe_max:
+        out.append(
+            f"{r.name}: following error: {fe:.0f} counts > {fe_max:.4g} counts "
+            f"({fe - fe_max:.4g} counts over)"
+        )
+    sat, sat_max = r.saturation_fraction, limits.max_saturation
+    if sat > sat_max:
+        out.append(
+            f"{r.name}: saturation: {100 * sat:.1f} % of ticks at the motor limit > "
+            f"{100 * sat_max:g} % ({100 * (sat - sat_max):.1f} points over)"
+        )
+    m = op.margins  # the worst holding point's
+    where = r.name
+    if len({(a.margins.stable, round(a.margins.phase_margin_deg, 6),
+             round(a.margins.gain_margin_db, 6)) for a in op.analyses}) > 1:  # fmt: skip
+        where += f" (holding at {op.points[op.worst]:+.4g} {unit}".rstrip() + ")"
+    if not m.stable:
+        radius = m.spectral_radius
+        grows = (
+            f": spectral radius {radius:.4g}, grows {radius:.3g}x per tick"
+            if math.isfinite(radius) and radius > 1
+            else ""
+        )
+        out.append(f"{where}: unstable closed loop{grows}")
+        return out
+    gm, pm = m.gain_margin_db, m.phase_margin_deg
+    if gm < limits.min_gain_margin_db:
+        out.append(
+            f"{where}: gain margin: {gm:.2f} dB < {limits.min_gain_margin_db:g} dB "
+            f"({limits.min_gain_margin_db - gm:.2f} dB short)"
+        )
+    if pm < limits.min_phase_margin_deg:
+        out.append(
+            f"{where}: phase margin: {pm:.2f} deg < {limits.min_phase_margin_deg:g} deg "
+            f"({limits.min_phase_margin_deg - pm:.2f} deg short)"
+        )
+    return out
 
 
 def loop_margins(scenario: Scenario, params: Any, latencies: Sequence[str] | None = None):
-    """``{loop_latency: (freqs_hz, L, Margins)}`` of ``params`` on the scenario's nominal
-    plant, for each of ``latencies`` (``None``: the scenario's own); one plant build."""
+    """``{loop_latency: OperatingMargins}`` of ``params`` on the scenario's nominal plant
+    (with its fixed values), for each of ``latencies`` (``None``: the scenario's own)."""
     chip = scenario.chip
     asm = scenario.assumptions or chip.default_assumptions()
     family = get_plant(scenario.plant)
     plant = family.build({**family.nominal(), **scenario.plant_values})
-    dt = chip.sample_time_s(params)
-    continuous = continuous_model(plant)  # the same for every latency
+    cache: dict = {}  # the continuous models are the same for every latency
     out = {}
     for choice in latencies or [asm.loop_latency]:
         a = dataclasses.replace(asm, loop_latency=choice)
-        freqs, response = plant_response(plant, dt, chip.loop_latency_s(params, a), continuous)
-        loop = open_loop(chip, params, a, freqs, response)
-        out[choice] = (freqs, loop, margins(freqs, loop))
+        out[choice] = operating_margins(chip, params, a, plant, scenario.moves, cache=cache)
+    return out
+
+
+WORST_KEYS = ("gain_margin_db", "phase_margin_deg", "delay_margin_s", "bandwidth_hz")
+"""The margins :attr:`CheckReport.worst` gives (each the smallest over the cases)."""
+
+
+def worst_margins(cases: Sequence[CaseResult]) -> dict[str, dict[str, Any]]:
+    """The smallest of each of :data:`WORST_KEYS` over the cases, with the case's name (an
+    unstable case's gain and phase margins are <= 0, so it is the worst)."""
+    out = {}
+    for key in WORST_KEYS:
+        rows = [(getattr(c.margins, key), c.name) for c in cases if c.margins is not None]
+        rows = [(v, n) for v, n in rows if not math.isnan(v)]
+        if rows:
+            v, n = min(rows, key=lambda r: r[0])
+            out[key] = {"value": float(v), "case": n}
     return out
 
 
@@ -266,46 +395,41 @@ def check_params(
         cases.append(_Case(f"plant draw {i + 1}", asm.loop_latency, changes))
     n_workers = workers or os.cpu_count() or 1
     with cf.ThreadPoolExecutor(n_workers) as pool:
-        results = list(
-            pool.map(lambda c: _run_case(scenario, params, c, limits.reference_substeps), cases)
-        )
-    computed = loop_margins(scenario, params, type(asm).CHOICES["loop_latency"])
-    by_latency = {choice: m for choice, (_, _, m) in computed.items()}
-    main = computed[asm.loop_latency]
-    failures = []
-    for r in results:
-        if r.diverged:
-            failures.append(
-                f"{r.name}: diverged ({r.divergence_reason}) at t = {r.divergence_time_s:.4g} s"
-            )
-    m = main[2]
-    if m.gain_margin_db < limits.min_gain_margin_db:
-        failures.append(
-            f"gain margin: {m.gain_margin_db:.2f} dB < {limits.min_gain_margin_db:g} dB "
-            f"({limits.min_gain_margin_db - m.gain_margin_db:.2f} dB short)"
-        )
-    if m.phase_margin_deg < limits.min_phase_margin_deg:
-        failures.append(
-            f"phase margin: {m.phase_margin_deg:.2f} deg < {limits.min_phase_margin_deg:g} deg "
-            f"({limits.min_phase_margin_deg - m.phase_margin_deg:.2f} deg short)"
-        )
+        ran = list(pool.map(lambda c: _run_case(scenario, params, c, limits), cases))
+    results = [r for r, _ in ran]
+    failures = [line for r in results for line in r.failures]
+    by_latency = {
+        r.loop_latency: r.margins
+        for r in results
+        if r.margins is not None and (r.name == "reference" or r.name.startswith("latency "))
+    }
+    reference, reference_op = ran[0]
     if bode_path is not None:
-        write_bode(bode_path, scenario, params, limits, main)
+        write_bode(bode_path, scenario, params, limits, reference_op)
     return CheckReport(
         passed=not failures,
         failures=tuple(failures),
         cases=tuple(results),
-        margins=m,
+        margins=reference.margins,
         margins_by_latency=by_latency,
         limits=limits,
         elapsed_s=time.perf_counter() - t0,
+        worst=worst_margins(results),
     )
 
 
 def write_bode(path: Any, scenario: Scenario, params: Any, limits: CheckLimits, computed=None):
-    """Write the Bode plot of the open loop of ``params`` on the nominal plant (PNG)."""
+    """Write the Bode plot of the open loop of ``params`` on the nominal plant at its worst
+    holding point (PNG); ``computed``: its :class:`OperatingMargins`, when known."""
     asm = scenario.assumptions or scenario.chip.default_assumptions()
-    freqs, loop, m = computed or loop_margins(scenario, params)[asm.loop_latency]
-    title = f"{scenario.chip_model} on {scenario.plant}: open loop (latency {asm.loop_latency})"
-    bode_plot(path, freqs, loop, m, title,
+    op = computed or loop_margins(scenario, params)[asm.loop_latency]
+    a = op.analysis
+    where = ""
+    if len(op.points) > 1:
+        unit = get_plant(scenario.plant).joint_unit
+        where = f", holding at {op.points[op.worst]:+.4g} {unit}"
+    title = (
+        f"{scenario.chip_model} on {scenario.plant}: open loop (latency {asm.loop_latency}{where})"
+    )
+    bode_plot(path, a.freqs_hz, a.loop, a.margins, title,
               (limits.min_gain_margin_db, limits.min_phase_margin_deg))  # fmt: skip

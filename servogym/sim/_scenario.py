@@ -17,8 +17,9 @@ import numpy as np
 
 from servogym.chips._family import Move, get_chip
 from servogym.plants import check_motor, get_plant
-from servogym.sim._margins import Margins, analyse_loop, continuous_model, linearize
+from servogym.sim._margins import Margins
 from servogym.sim._metrics import EpisodeMetrics
+from servogym.sim._operating import operating_margins
 from servogym.sim._runner import EpisodeResult, ServoLoop
 
 COST_CAP = 100.0
@@ -274,28 +275,20 @@ class Evaluator:
             substeps=scenario.substeps,
         )
         self._profiles: dict[tuple, list] = {}
-        self._plant_responses: dict[tuple, Any] = {}
-        self._continuous: dict[tuple, Any] = {}
+        self._linear: dict[tuple, Any] = {}  # linearisations, see margins()
 
     def margins(self, params: Any) -> Margins:
-        """Stability and margins of ``params`` on the current plant instance (``_margins``).
+        """Stability and margins of ``params`` on the current plant instance, at its worst
+        holding point (``_operating``: the start and the end of every move).
 
-        The plant's linearisation is computed once per plant instance, its discretisation
-        once per plant instance, servo period and latency, then reused.
+        The plant's linearisation at each point is computed once per plant instance, its
+        discretisation once per plant instance, servo period and latency, then reused.
         """
-        chip = self.scenario.chip
-        asm = self.scenario.assumptions or chip.default_assumptions()
-        dt = chip.sample_time_s(params)
-        latency = chip.loop_latency_s(params, asm)
-        instance = tuple(sorted(self.plant.values.items()))
-        key = (instance, dt, latency)
-        if key not in self._plant_responses:
-            if instance not in self._continuous:
-                self._continuous[instance] = continuous_model(self.plant)
-            self._plant_responses[key] = linearize(
-                self.plant, dt, latency, self._continuous[instance]
-            )
-        return analyse_loop(chip, params, asm, self._plant_responses[key]).margins
+        asm = self.scenario.assumptions or self.scenario.chip.default_assumptions()
+        return operating_margins(
+            self.scenario.chip, params, asm, self.plant, self.scenario.moves,
+            cache=self._linear,
+        ).margins  # fmt: skip
 
     def profiles(self, params: Any) -> list:
         """The chip profiles of the scenario's moves at this plant's encoder resolution."""

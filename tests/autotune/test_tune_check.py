@@ -30,7 +30,7 @@ def test_a_failing_check_withholds_the_hardware_files_unless_forced(tmp_path):
     _, summary = tune(config(tmp_path / "a", min_phase_margin_deg=89.0))
     out = tmp_path / "a"
     assert summary["check"]["passed"] is False
-    assert any(f.startswith("phase margin: ") and f.endswith("deg short)")
+    assert any(f.startswith("reference: phase margin: ") and f.endswith("deg short)")
                for f in summary["check"]["failures"])  # fmt: skip
     formats = set(export_names(get_chip("TurboPMAC2")[0])) - {"json"}
     assert formats and set(summary["hardware_files_withheld"]) == formats

@@ -70,9 +70,12 @@ def test_margin_failures_name_the_check_and_the_gap():
     report = check_params(params, scenario, strict)
     assert not report.passed
     gm = report.margins.gain_margin_db
-    line = next(f for f in report.failures if f.startswith("gain margin"))
-    assert line == f"gain margin: {gm:.2f} dB < 59 dB ({59 - gm:.2f} dB short)"
-    assert any(f.startswith("phase margin") for f in report.failures)
+    line = next(f for f in report.failures if f.startswith("reference: gain margin"))
+    assert line == f"reference: gain margin: {gm:.2f} dB < 59 dB ({59 - gm:.2f} dB short)"
+    assert any(f.startswith("reference: phase margin") for f in report.failures)
+    for c in report.cases:  # every case, each with its own margins
+        assert any(f.startswith(f"{c.name}: gain margin: {c.margins.gain_margin_db:.2f} dB")
+                   for f in report.failures)  # fmt: skip
 
 
 def test_a_set_that_diverges_in_one_case_fails_naming_it():
@@ -105,7 +108,7 @@ def test_check_command_passes_and_fails_with_exit_codes(tmp_path):
     r = RUNNER.invoke(app, ["check", str(path), "--plant", "rotary", "--out", str(out),
                             "--min-phase-margin", "89"])  # fmt: skip
     assert r.exit_code == 1
-    assert "fail: phase margin:" in r.output and "deg short" in r.output
+    assert "fail: reference: phase margin:" in r.output and "deg short" in r.output
     r = RUNNER.invoke(app, ["check", str(path), "--plant", "rotary", "--chip", "MC2100"])
     assert r.exit_code == 2
     assert "--chip MC2100 is a pmd model, but the file is a parker6k" in r.output
