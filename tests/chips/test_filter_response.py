@@ -471,3 +471,63 @@ def test_pmd_derivative_hold_closed_form_is_the_sum_of_its_phases(mode):
     assert derivative_response(5, mode, np.array([1.0 + 0j]))[0] == 0
     # z = -1 (Nyquist), d = 4: the hold's four phases cancel: D = 0 in both modes.
     assert abs(derivative_response(4, mode, np.array([-1.0 + 0j]))[0]) < 1e-15
+
+
+# --- the same response as polynomials ------------------------------------------------------
+
+
+def random_set(family, model: str, rng, max_derivative_time: int = 32767):
+    """Every tunable register drawn across its legal range (PMD DerivativeTime up to
+    ``max_derivative_time``)."""
+    space = family.parameter_space(model)
+    values = {s.name: s.from_unit(float(rng.uniform(-1, 1))) for s in space.tunable()}
+    if "derivative_time" in values:
+        values["derivative_time"] = int(rng.integers(1, max_derivative_time + 1))
+    return family.make_params(model, values)
+
+
+@pytest.mark.parametrize(("model", "setting"), CASES)
+def test_filter_polynomials_are_filter_response(model, setting):
+    """``num(z^-1) / den(z^-1)`` equals ``filter_response`` to 1e-12 (relative to the
+    terms' sizes) at random z
+    (near the unit circle, where a long held derivative's ``z^-2d`` stays finite), for the
+    test set and for random sets of every model and assumption setting; ``den[0] = 1``."""
+    family, model = get_chip(model)
+    asm = settings_of(family)[setting]
+    rng = np.random.default_rng(setting)
+    sets = [linear_params(family, model, asm)]
+    sets += [random_set(family, model, rng, 40) for _ in range(4)]
+    sets += [random_set(family, model, rng) for _ in range(2)]
+    for params in sets:
+        num, den = family.filter_polynomials(params, asm)
+        assert num.dtype == den.dtype == np.float64 and den[0] == 1.0
+        degree = num.size + den.size + 2 * getattr(params, "derivative_time", 0)
+        radius = np.exp(rng.uniform(-1, 1, 16) * min(0.3, 2.0 / degree))
+        z = radius * np.exp(1j * rng.uniform(-np.pi, np.pi, 16))
+        want = family.filter_response(params, asm, z)
+        x = 1 / z
+        got = np.polynomial.polynomial.polyval(x, num) / np.polynomial.polynomial.polyval(x, den)
+        # Relative to the sum of the terms' sizes (both forms cancel the same terms: a
+        # large velocity gain times 1 - z^-1 near z = 1).
+        terms = np.polynomial.polynomial.polyval(np.abs(x), np.abs(num))
+        scale = np.abs(want) + terms / np.abs(np.polynomial.polynomial.polyval(x, den))
+        err = np.abs(got - want)
+        assert np.all(err <= 1e-12 * scale), (params, np.max(err / scale))
+
+
+def test_filter_polynomials_by_hand():
+    """PMD Kp 100, Ki 512 (2 after the shift), Kd 60 held over 3 cycles, Kout 16384 (1/4):
+    ``C = (100 + 2 / (1 - x) + 60 (1 + x + x^2)(1 - x^3) / 3) / 4``; a zero filter is ``[0]``."""
+    family, model = get_chip("MC2100")
+    params = family.make_params(model, dict(kp=100, ki=512, kd=60, kout=16384, derivative_time=3))
+    num, den = family.filter_polynomials(params, None)
+    d = np.array([20.0, 20, 20, -20, -20, -20])
+    want = np.convolve(np.concatenate([[100.0], np.zeros(5)]) + d, [1.0, -1.0])
+    want[0] += 2.0
+    np.testing.assert_allclose(num, want / 4, rtol=1e-15)
+    np.testing.assert_array_equal(den, [1.0, -1.0])
+    zero = family.make_params(model, dict(kp=0, ki=0, kd=0))
+    num, den = family.filter_polynomials(zero, None)
+    assert num.tolist() == [0.0] and den.tolist() == [1.0]
+    with pytest.raises(TypeError, match="params for a pmd chip must be PMDParams"):
+        family.filter_polynomials(object(), None)
