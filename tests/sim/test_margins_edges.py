@@ -23,8 +23,8 @@ from servogym.sim._margins import (
     continuous_model,
     continuous_phase,
     frequency_grid,
+    frequency_margins,
     linearize,
-    margins,
 )
 
 # --- the linearised plant ----------------------------------------------------------------
@@ -160,70 +160,6 @@ def test_frequency_grid_spans_the_documented_range():
 
 
 # --- the margins ------------------------------------------------------------------------------
-
-
-def test_bandwidth_of_an_integrator_loop():
-    """L = wc / (jw): the closed loop wc / (jw + wc) falls to 1/sqrt(2) of its low-frequency
-    value (|T(f0)| = 1 / sqrt(1 + (f0/100)^2), f0 = 1 Hz) just past fc = 100 Hz: the
-    bandwidth is the first grid point past fc (the point before it lies below 100 Hz)."""
-    f = frequency_grid(1e-4, 2000)
-    loop = 100.0 / (1j * f)
-    m = margins(f, loop)
-    k = int(np.flatnonzero(f == m.bandwidth_hz)[0])
-    assert f[k - 1] < 100.0 < f[k]
-    assert m.bandwidth_hz == pytest.approx(100.0, rel=0.005)
-    # No phase crossover (-90 degrees throughout): unbounded gain margin; PM 90 at 100 Hz.
-    assert math.isinf(m.gain_margin_db) and math.isnan(m.phase_crossover_hz)
-    assert m.phase_margin_deg == pytest.approx(90.0)
-    assert m.gain_crossover_hz == pytest.approx(100.0, rel=1e-3)
-
-
-def test_a_closed_loop_that_never_drops_has_no_bandwidth():
-    # L = 10 everywhere: |L / (1 + L)| = 10/11 at every frequency: no -3 dB point.
-    f = frequency_grid(1e-4, 50)
-    m = margins(f, np.full(f.size, 10.0 + 0j))
-    assert math.isnan(m.bandwidth_hz)
-    assert math.isinf(m.phase_margin_deg) and math.isinf(m.gain_margin_db)
-
-
-@pytest.mark.parametrize(
-    ("re", "gm_db"),
-    [(-0.5, 20 * math.log10(2)), (-0.25, 20 * math.log10(4)), (-1.0, math.inf), (-1.5, math.inf)],
-)
-def test_gain_margin_counts_only_crossings_inside_the_unit_circle(re, gm_db):
-    # The loop crosses the negative real axis at re between two grid points (imaginary parts
-    # -1 and +1, the real part constant): the gain margin is -20 log10(-re) where |re| < 1;
-    # at -1 (the critical point) and beyond it the crossing is no margin at all.
-    f = np.array([10.0, 20.0])
-    loop = np.array([re - 0.1j, re + 0.1j])
-    m = margins(f, loop)
-    assert m.gain_margin_db == pytest.approx(gm_db)
-    if math.isfinite(gm_db):
-        assert m.phase_crossover_hz == pytest.approx(15.0)  # im = 0 half way
-    else:
-        assert math.isnan(m.phase_crossover_hz)
-
-
-def test_the_smallest_of_two_gain_margins_is_kept():
-    # Crossings at -0.25 (12.04 dB, 15 Hz) then -0.5 (6.02 dB, 35 Hz): the 6.02 dB one.
-    f = np.array([10.0, 20.0, 30.0, 40.0])
-    loop = np.array([-0.25 - 0.1j, -0.25 + 0.1j, -0.5 + 0.1j, -0.5 - 0.1j])
-    m = margins(f, loop)
-    assert m.gain_margin_db == pytest.approx(20 * math.log10(2))
-    assert m.phase_crossover_hz == pytest.approx(35.0)
-
-
-def test_an_exact_zero_of_the_loop_on_the_grid():
-    # A zero of L on a grid point (a notch there; PMD's held derivative at Nyquist): its log
-    # magnitude counts as -infinity. Below 1 on both sides it is no crossover.
-    f = np.array([10.0, 20.0, 30.0])
-    m = margins(f, np.array([0.5, 0.0, 0.5 + 0j]))
-    assert math.isinf(m.phase_margin_deg) and math.isnan(m.gain_crossover_hz)
-    # Rising from the zero to |L| = 2 it crosses 1 just below the upper point: in log
-    # magnitude from (a stand-in for) -infinity to log10(2), within 10 Hz * 0.301 / 300 of it.
-    m = margins(f, np.array([0.5, 0.0, 2.0 + 0j]))
-    assert 29.98 < m.gain_crossover_hz <= 30.0
-    assert m.phase_margin_deg == pytest.approx(180.0)  # L > 0 there: phase 0
 
 
 def test_continuous_phase_starts_in_the_half_open_turn_below_zero():
@@ -480,13 +416,25 @@ def _plotted(monkeypatch, *args, **kwargs):
     return fig
 
 
+def _analytic(loop_of_hz, dt, stable=True, radius=0.5):
+    from servogym.sim._margins import Stability
+
+    s = Stability(stable, 0 if stable else 2, radius, 3, "eigenvalues")
+    return frequency_margins(lambda t: loop_of_hz(np.asarray(t) / (2 * np.pi * dt)), dt, s)
+
+
 def test_bode_plot_draws_the_loop_its_reference_lines_and_its_margins(monkeypatch):
-    # The integrator with a 1 ms delay of test_margins: crossover 100 Hz, PM = 90 - 36 = 54
-    # degrees, phase -180 at 250 Hz where |L| = 100/250: GM = 20 log10(2.5) = 7.96 dB.
+    # The integrator with a 1 ms delay (test_stability): crossover 100 Hz, PM = 90 - 36 = 54
+    # degrees, phase -180 at 250 Hz where |L| = 100/250: GM = 20 log10(2.5) = 7.96 dB, and
+    # every later crossing of the negative real axis marked as well.
     dt = 1e-4
     f = frequency_grid(dt, 4000)
-    loop = 100.0 * np.exp(-2j * np.pi * f * 1e-3) / (1j * f)
-    m = margins(f, loop)
+
+    def fn(x):
+        return 100.0 * np.exp(-2j * np.pi * x * 1e-3) / (1j * x)
+
+    loop = fn(f)
+    m = _analytic(fn, dt)
     fig = _plotted(monkeypatch, f, loop, m, "T", (6.0, 30.0))
     ax_m, ax_p = fig.axes
     curve = ax_m.lines[0]
@@ -498,50 +446,55 @@ def test_bode_plot_draws_the_loop_its_reference_lines_and_its_margins(monkeypatc
         ln.get_ydata()[0] for ln in ax_p.lines[1:] if ln.get_ydata()[0] == ln.get_ydata()[1]
     ]
     assert horizontal == [-1620, -1260, -900, -540, -180, 180]  # -180 + 360 k, k = -4 .. 1
-    # every line is drawn (a positive width)
     assert all(ln.get_linewidth() > 0 for ax in (ax_m, ax_p) for ln in ax.lines)
     assert [ln.get_ydata()[0] for ln in ax_m.lines[1:2]] == [0]  # the 0 dB line
-    # The phase axis shows the whole curve with 20 degrees to spare and always 0 and -200.
     assert ax_p.get_ylim() == pytest.approx((phase.min() - 20, 20.0))
     vertical_m = [ln.get_xdata()[0] for ln in ax_m.lines[2:]]
-    assert vertical_m == pytest.approx([m.gain_crossover_hz, m.phase_crossover_hz, m.bandwidth_hz])
-    assert [ln.get_xdata()[0] for ln in ax_p.lines[-1:]] == pytest.approx([m.gain_crossover_hz])
+    want = [c[0] for c in m.crossovers] + [c[0] for c in m.phase_crossovers] + [m.bandwidth_hz]
+    assert vertical_m == pytest.approx(want)
     (pm_note,) = ax_p.texts
-    assert (
-        pm_note.get_text()
-        == f"PM {m.phase_margin_deg:.1f} deg at 100 Hz"
-        == "PM 54.0 deg at 100 Hz"
+    assert pm_note.get_text() == "PM 54.0 deg at 100 Hz"
+    assert pm_note.xy == pytest.approx((100.0, -126.0), abs=1e-3)
+    notes = [t.get_text() for t in ax_m.texts]
+    assert notes[0] == "GM 8.0 dB at 250 Hz" and len(notes) == len(m.phase_crossovers)
+    assert ax_m.texts[0].xy == pytest.approx((m.phase_crossover_hz, -m.gain_margin_db))
+    assert ax_m.get_title() == (
+        f"stable: gain margin {m.gain_margin_db:.3g} dB, phase margin 54 deg, delay margin "
+        f"1.5 ms, closed-loop bandwidth {m.bandwidth_hz:.3g} Hz"
     )
-    assert pm_note.xy == pytest.approx((m.gain_crossover_hz, -180 + m.phase_margin_deg))
-    (gm_note,) = ax_m.texts
-    assert gm_note.get_text() == "GM 8.0 dB at 250 Hz"
-    assert gm_note.xy == pytest.approx((m.phase_crossover_hz, -m.gain_margin_db))
-    title = ax_m.get_title()
-    assert title == (f"gain margin {m.gain_margin_db:.3g} dB, phase margin 54 deg, "
-                     f"closed-loop bandwidth {m.bandwidth_hz:.3g} Hz")  # fmt: skip
     assert fig.get_suptitle() == "T (minima 6 dB, 30 deg)"
 
 
-def test_bode_plot_of_a_loop_without_crossings(monkeypatch):
+def test_bode_plot_of_an_unstable_loop_and_of_one_without_crossings(monkeypatch):
+    dt = 1e-4
+    f = frequency_grid(dt, 400)
+
+    def fn(x):
+        return 100.0 * np.exp(-2j * np.pi * x * 4e-3) / (1j * x)
+
+    m = _analytic(fn, dt, stable=False, radius=1.33)
+    title = _plotted(monkeypatch, f, fn(f), m, "T").axes[0].get_title()
+    assert title.startswith(
+        "unstable (spectral radius 1.33): gain margin -4.08 dB, phase margin -54"
+    )
     # L = 10 never crosses 1 nor the negative real axis: no marks, "unbounded" margins, no
     # bandwidth ("none"), no minima in the title when none are given.
-    f = frequency_grid(1e-4, 50)
     loop = np.full(f.size, 10.0 + 0j)
-    m = margins(f, loop)
+    m = _analytic(lambda x: np.full(np.shape(x), 10.0 + 0j), dt)
     fig = _plotted(monkeypatch, f, loop, m, "T")
     ax_m, ax_p = fig.axes
     assert not ax_m.texts and not ax_p.texts
     assert len(ax_m.lines) == 2  # the curve and the 0 dB line
     assert np.all(ax_m.lines[0].get_ydata() == 20.0)
     assert ax_m.get_title() == (
-        "gain margin unbounded, phase margin unbounded, closed-loop bandwidth none"
+        "stable: gain margin unbounded, phase margin unbounded, delay margin unbounded, "
+        "closed-loop bandwidth none"
     )
     assert fig.get_suptitle() == "T"
-    # a phase of 0 throughout: the axis from -200 - 20 to 0 + 20 degrees
     assert ax_p.get_ylim() == pytest.approx((-220.0, 20.0))
     # An exact zero of L on the grid is drawn (far below the rest), not lost as -inf.
     loop[20] = 0.0
-    curve = _plotted(monkeypatch, f, loop, margins(f, loop), "T").axes[0].lines[0].get_ydata()
+    curve = _plotted(monkeypatch, f, loop, m, "T").axes[0].lines[0].get_ydata()
     assert np.all(np.isfinite(curve)) and curve[20] < -1000
 
 
@@ -613,47 +566,6 @@ def test_result_types_are_frozen():
 
 
 # --- more margins ----------------------------------------------------------------------------
-
-
-def test_a_loop_unstable_at_its_first_crossover_has_a_negative_phase_margin():
-    # L = wc e^{-jwD} / (jw), wc = 2 pi 100, D = 4 ms: at the crossover (100 Hz) the phase
-    # is -90 - 360 * 100 * 0.004 = -234 degrees: PM = 180 - 234 = -54 (the classical value,
-    # not its distance from -1).
-    f = frequency_grid(1e-4, 4000)
-    loop = 100.0 * np.exp(-2j * np.pi * f * 4e-3) / (1j * f)
-    m = margins(f, loop)
-    assert m.phase_margin_deg == pytest.approx(-54.0, abs=0.05)
-    assert m.gain_crossover_hz == pytest.approx(100.0, rel=1e-3)
-
-
-def test_later_crossovers_far_round_the_circle_and_ties():
-    """Later crossovers count by their angle from -1 however far the phase has turned:
-    at -500 degrees L points 140 degrees below the positive axis, 40 degrees from -1.
-    Of two equal margins the first crossover is reported."""
-    f = np.array([1.0, 100.0, 199.0, 201.0, 600.0, 1070.0, 1090.0])
-    mag = np.array([100.0, 3.0, 1.01, 0.99, 0.5, 0.99, 1.01])
-    deg = np.array([-180.0, -150.0, -125.0, -125.0, -300.0, -500.0, -500.0])
-    m = margins(f, mag * np.exp(1j * np.radians(deg)))
-    assert m.phase_margin_deg == pytest.approx(40.0)
-    assert m.gain_crossover_hz == pytest.approx(1080.0, rel=1e-3)
-    deg[-2:] = -235.0  # 180 - 235 = -55: 55 degrees from -1, as at the first crossover
-    m = margins(f, mag * np.exp(1j * np.radians(deg)))
-    assert m.phase_margin_deg == pytest.approx(55.0)
-    assert m.gain_crossover_hz == pytest.approx(200.0, rel=1e-3)
-    # Two crossings of the negative real axis at -0.5 (15 and 35 Hz): the first is reported.
-    f = np.array([10.0, 20.0, 30.0, 40.0])
-    m = margins(f, np.array([-0.5 - 0.1j, -0.5 + 0.1j, -0.5 + 0.1j, -0.5 - 0.1j]))
-    assert m.gain_margin_db == pytest.approx(20 * math.log10(2))
-    assert m.phase_crossover_hz == pytest.approx(15.0)
-
-
-def test_bandwidth_is_measured_from_the_lowest_frequency():
-    # |L / (1 + L)| = 0.99, 1.5, 0.9, 0.6 (L = 99, -3, 9, 1.5): 3 dB below the value at the
-    # lowest frequency (0.99 / sqrt(2) = 0.70) first at 4 Hz; a resonance on the way up
-    # (1.5 at 2 Hz) does not move the reference.
-    f = np.array([1.0, 2.0, 3.0, 4.0])
-    m = margins(f, np.array([99.0, -3.0, 9.0, 1.5 + 0j]))
-    assert m.bandwidth_hz == 4.0
 
 
 def test_continuous_phase_of_a_start_on_the_negative_axis_from_below():
