@@ -230,7 +230,7 @@ class Margins:
         gain_margin_db: Stable loop: the smallest change of the loop gain, up or down, in
             dB, that destabilises it (the smallest ``|gm|`` over the phase crossovers;
             ``inf`` when no gain does). Unstable loop: minus the smallest change that makes
-            it stable (``-inf`` when none does); always <= 0.
+            it stable (0 when none does: never ``inf``, JSON's ``None``); always <= 0.
         phase_margin_deg: Stable loop: the smallest pure phase rotation (lag or lead, deg)
             that destabilises it (the smallest ``|phi|``; ``inf`` without gain crossover).
             Unstable loop: minus the smallest rotation that stabilises it, -180 when none
@@ -572,7 +572,7 @@ def frequency_margins(
                     if db < best[0]:
                         best = (db, t * to_hz)
                     break
-        gm, f_gm = -best[0], best[1]
+        gm, f_gm = (-best[0], best[1]) if math.isfinite(best[0]) else (0.0, math.nan)
         best = (180.0, math.nan)
         for lag in (True, False):
             z = z0
@@ -735,7 +735,7 @@ def bode_plot(path: Any, freqs_hz: np.ndarray, loop: np.ndarray, m: Margins, tit
 
 def _fmt(x: float, unit: str) -> str:
     if math.isinf(x):
-        return "unbounded" if x > 0 else "none stabilises"
+        return "unbounded"
     if math.isnan(x):
         return "none"
     return f"{x:.3g} {unit}"
