@@ -309,8 +309,7 @@ def case_failures(
         )
     m = op.margins  # the worst holding point's
     where = r.name
-    if len({(a.margins.stable, round(a.margins.phase_margin_deg, 6),
-             round(a.margins.gain_margin_db, 6)) for a in op.analyses}) > 1:  # fmt: skip
+    if op.position_dependent:
         where += f" (holding at {op.points[op.worst]:+.4g} {unit}".rstrip() + ")"
     if not m.stable:
         radius = m.spectral_radius
@@ -425,7 +424,7 @@ def write_bode(path: Any, scenario: Scenario, params: Any, limits: CheckLimits, 
     op = computed or loop_margins(scenario, params)[asm.loop_latency]
     a = op.analysis
     where = ""
-    if len(op.points) > 1:
+    if op.position_dependent:
         unit = get_plant(scenario.plant).joint_unit
         where = f", holding at {op.points[op.worst]:+.4g} {unit}"
     title = (

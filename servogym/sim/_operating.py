@@ -69,6 +69,11 @@ class OperatingMargins:
         return self.analyses[self.worst].margins
 
     @property
+    def position_dependent(self) -> bool:
+        """Whether the loop differs between the holding points (gravity's slope changes)."""
+        return len({id(a) for a in self.analyses}) > 1
+
+    @property
     def analysis(self) -> LoopAnalysis:
         """The loop at the worst holding point (for the Bode plot)."""
         return self.analyses[self.worst]

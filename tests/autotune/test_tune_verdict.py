@@ -11,8 +11,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from servogym.autotune import TuneConfig, tune
-from servogym.autotune import _job
+from servogym.autotune import TuneConfig, _job, tune
 from servogym.autotune._cli import fallback_line, summary_heading, tune_command
 from servogym.autotune._report import plant_description
 from servogym.sim._check import CheckReport
