@@ -33,7 +33,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from servogym.chips._space import ParameterError
-from servogym.plants import get_plant
+from servogym.plants import feasible_range, get_plant, required_peak_effort
 from servogym.sim._margins import Margins, bode_plot
 from servogym.sim._operating import OperatingMargins, operating_margins
 from servogym.sim._runner import REFERENCE_SUBSTEPS
@@ -224,9 +224,20 @@ def stress_cases(scenario: Scenario, limits: CheckLimits) -> list[_Case]:
         if choice != asm.loop_latency:
             cases.append(_Case(f"latency {choice}", choice, {}))
     pct = round(100 * limits.load_spread)
+    movable = None
+    if scenario.motor_check:
+        movable = feasible_range(family, family.load_param, nominal, scenario.moves)
     for sign in (-1, 1):
         changes = _scaled(family, nominal, [family.load_param], 1 + sign * limits.load_spread)
-        cases.append(_Case(f"load {sign * pct:+d}%", asm.loop_latency, changes))
+        name = f"load {sign * pct:+d}%"
+        x = changes[family.load_param]
+        if movable is not None and not movable[0] <= x <= movable[1]:
+            # The load the motor can move with the moves is the envelope the set is for:
+            # a heavier load than that is refused as a plant, so it is not a stress case.
+            x = min(max(x, movable[0]), movable[1])
+            changes[family.load_param] = x
+            name += f" (capped at what the motor moves, {family.load_param}={x:.4g})"
+        cases.append(_Case(name, asm.loop_latency, changes))
     frictions = [p.name for p in family.params if "friction" in p.name]
     pct = round(100 * limits.friction_spread)
     for sign in (-1, 1):
@@ -283,9 +294,26 @@ def _run_case(
         margins=op.margins,
         holding_point=op.points[op.worst],
     )
-    unit = get_plant(scenario.plant).joint_unit
-    failures = case_failures(result, op, limits, unit)
+    family = get_plant(scenario.plant)
+    failures = case_failures(result, op, limits, family.joint_unit)
+    need = required_peak_effort(family, evaluator.plant.values, sc.moves)
+    share = float(params.motor_limit) / FULL_SCALE
+    if share < need.fraction:
+        failures.append(command_limit_failure(case.name, share, need))
     return dataclasses.replace(result, failures=tuple(failures)), op
+
+
+FULL_SCALE = 32767
+"""The chips' signed 16-bit motor command at full scale (``params.motor_limit`` counts)."""
+
+
+def command_limit_failure(case: str, share: float, need: Any) -> str:
+    """The set's own command limit is below what the moves need of the motor."""
+    return (
+        f"{case}: command limit: the set limits the motor command to {share:.1%} of full "
+        f"scale (params.motor_limit; PMD motor_limit, PMAC Ixx69 output_limit), below the "
+        f"{need.fraction:.1%} of the motor's peak the moves need ({need.text()})"
+    )
 
 
 def case_failures(

@@ -139,3 +139,34 @@ def test_worst_margins_of_no_case_is_empty():
 def test_bad_limits_name_the_parameter(kw, match):
     with pytest.raises(ValueError, match=match):
         CheckLimits(**kw)
+
+
+def test_a_command_limit_below_what_the_moves_need_is_named():
+    # Turbo PMAC's default Ixx69 (20480, 62.5 % of full scale) on the arm at 3 kg, whose
+    # moves need about 75 % of the motor's peak: the check says so, in every case.
+    scenario = Scenario("TurboPMAC2", "arm", plant_values={"payload_kg": 3.0})
+    rec = SETS["TurboPMAC2/arm/default"]["values"]
+    params = scenario.params({**rec, "output_limit": 20480})
+    report = check_params(params, scenario, FAST)
+    lines = [f for f in report.failures if ": command limit: " in f]
+    assert {f.split(":")[0] for f in lines} == {c.name for c in report.cases}
+    assert "limits the motor command to 62.5% of full scale" in lines[0]
+    raised = check_params(scenario.params({**rec, "output_limit": 32767}), scenario, FAST)
+    assert not any(": command limit: " in f for f in raised.failures)
+
+
+def test_the_load_spread_stops_at_what_the_motor_moves():
+    from servogym.plants import feasible_range
+    from servogym.sim._check import stress_cases
+
+    top = feasible_range("arm", "payload_kg")[1]
+    scenario = Scenario("MC2100", "arm", plant_values={"payload_kg": top})
+    cases = {c.name.split(" (")[0]: c for c in stress_cases(scenario, FAST)}
+    up = cases["load +20%"]
+    assert up.plant_changes == {"payload_kg": top}
+    assert "capped at what the motor moves, payload_kg=" in up.name
+    assert cases["load -20%"].plant_changes["payload_kg"] == pytest.approx(0.8 * top)
+    # off the motor check (a scenario built to overload), the spread is the plain 20 %
+    free = Scenario("MC2100", "arm", plant_values={"payload_kg": top}, motor_check=False)
+    names = [c.name for c in stress_cases(free, FAST)]
+    assert "load +20%" in names
