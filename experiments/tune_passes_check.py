@@ -83,7 +83,11 @@ def main() -> None:
     ap.add_argument("--points", default="ends")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", type=Path, default=Path("runs/tune_passes_check"))
+    ap.add_argument(
+        "--tune-args", default="", help="more tune options, e.g. '--fix output_limit=32767'"
+    )
     args = ap.parse_args()
+    extra = args.tune_args.split()
     done = set()
     if RESULTS.exists():
         for line in RESULTS.read_text().splitlines():
@@ -93,7 +97,7 @@ def main() -> None:
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     for plant, values in parse_points(args.points):
         for chip in args.chips.split(","):
-            key = key_of(chip, plant, values, args.budget)
+            key = key_of(chip, plant, values, args.budget) + (f"|{args.tune_args}" if extra else "")
             if key in done:
                 continue
             tag = "-".join(f"{k}{v:.3g}" for k, v in values.items()) or "nominal"
@@ -101,12 +105,13 @@ def main() -> None:
             t0 = time.perf_counter()
             cmd = [*SERVOGYM, "tune", "--chip", chip, "--plant", plant, *plant_args(values),
                    "--budget", str(args.budget), "--workers", str(args.workers),
-                   "--out", str(out), "--json"]  # fmt: skip
+                   "--out", str(out), "--json", *extra]  # fmt: skip
             run = subprocess.run(cmd, capture_output=True, text=True)
             wall = time.perf_counter() - t0
             record = {
                 "key": key, "chip": chip, "plant": plant, "plant_values": values,
                 "budget": args.budget, "exit_code": run.returncode, "wall_s": wall,
+                "tune_args": args.tune_args,
             }  # fmt: skip
             if run.returncode not in (0, 1) or not (out / "summary.json").exists():
                 record["error"] = (run.stderr or run.stdout).strip().splitlines()[-3:]
@@ -140,6 +145,8 @@ def main() -> None:
 
 def row(r: dict) -> str:
     vals = ", ".join(f"{k}={v:.3g}" for k, v in r["plant_values"].items()) or "nominal"
+    if r.get("tune_args"):
+        vals += f" ({r['tune_args']})"
     if "error" in r:
         crash = f"crashed (exit {r['exit_code']})"
         return f"| {r['chip']} | {r['plant']} {vals} | {crash} | {r['error']} |"
