@@ -236,7 +236,7 @@ def stress_cases(scenario: Scenario, limits: CheckLimits) -> list[_Case]:
             # a heavier load than that is refused as a plant, so it is not a stress case.
             x = min(max(x, movable[0]), movable[1])
             changes[family.load_param] = x
-            name += f" (capped at what the motor moves, {family.load_param}={x:.4g})"
+            name += " (motor's max)"
         cases.append(_Case(name, asm.loop_latency, changes))
     frictions = [p.name for p in family.params if "friction" in p.name]
     pct = round(100 * limits.friction_spread)

@@ -164,7 +164,7 @@ def test_the_load_spread_stops_at_what_the_motor_moves():
     cases = {c.name.split(" (")[0]: c for c in stress_cases(scenario, FAST)}
     up = cases["load +20%"]
     assert up.plant_changes == {"payload_kg": top}
-    assert "capped at what the motor moves, payload_kg=" in up.name
+    assert up.name == "load +20% (motor's max)"
     assert cases["load -20%"].plant_changes["payload_kg"] == pytest.approx(0.8 * top)
     # off the motor check (a scenario built to overload), the spread is the plain 20 %
     free = Scenario("MC2100", "arm", plant_values={"payload_kg": top}, motor_check=False)
