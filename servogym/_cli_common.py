@@ -6,6 +6,7 @@ hold ``[...]``), no wrapping at the terminal width, no traceback; the exit code 
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import NoReturn
 
 import typer
@@ -51,3 +52,34 @@ def check_number(
         fail(f"{option} must satisfy {rule}; got {option} {value:g}.")
     if high is not None and value > high:
         fail(f"{option} must satisfy {rule}; got {option} {value:g}.")
+
+
+def check_writable_folder(option: str, folder: Path) -> None:
+    """Create ``folder`` (and its parents) and prove a file can be written in it, before any
+    work: a read-only or full place fails at once, not after the run. Folders created for
+    the probe are removed again when it fails."""
+    import contextlib
+    import os
+    import tempfile
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        fail(f"{option} {str(folder)!r} is a file; give a folder.")
+    created = []
+    p = folder
+    while not p.exists() and p != p.parent:
+        created.append(p)
+        p = p.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".servogym-probe.", suffix=".tmp")
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        for c in created:
+            with contextlib.suppress(OSError):
+                c.rmdir()
+        fail(
+            f"{option} {str(folder)!r} cannot be written: {exc.strerror or exc}; give a folder "
+            f"you can write to."
+        )

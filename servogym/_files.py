@@ -245,6 +245,49 @@ def _sha256_file(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
+
+
+def read_manifest(path: str | Path) -> dict[str, Any]:
+    """A file set's manifest (or pending manifest), read bounded and schema-checked.
+
+    Raises:
+        FileSafetyError: one line naming the file and what is wrong with it (not a regular
+            file, too large or deep, not JSON, not servogym's schema) and what to do.
+    """
+    from servogym._input import InputError, parse_json, read_text
+
+    path = Path(path)
+    remedy = (
+        f"it is not a servogym file-set manifest; if the folder holds no servogym run, "
+        f"move the file away or remove {str(path)!r}, else run the command that wrote the "
+        f"set again"
+    )
+    try:
+        doc = parse_json(read_text(path, "the manifest"), f"the manifest {str(path)!r}")
+    except InputError as exc:
+        raise FileSafetyError(f"{str(exc).rstrip('.')}: {remedy}.") from None
+    files = doc.get("files")
+    why = None
+    if doc.get("format") != SET_FORMAT:
+        why = f"format must be {SET_FORMAT!r}; got format={doc.get('format')!r}"
+    elif not isinstance(doc.get("token"), str) or not re.fullmatch(r"[0-9a-f]{12}", doc["token"]):
+        why = f"token must be 12 hex digits; got token={doc.get('token')!r}"
+    elif not isinstance(files, dict):
+        why = f"files must be an object of file name -> entry; got files={files!r:.60}"
+    else:
+        for name, entry in files.items():
+            if Path(name).name != name or name in ("", ".", "..", MANIFEST, PENDING):
+                why = f"files names a plain file name each; got {name!r}"
+            elif not isinstance(entry, dict) or not _SHA256.match(str(entry.get("sha256"))):
+                why = f"files[{name!r}] must hold a 64-hex-digit sha256; got {entry!r:.80}"
+            if why:
+                break
+    if why is not None:
+        raise FileSafetyError(f"the manifest {str(path)!r}: {why}; {remedy}.")
+    return doc
+
+
 def write_file_set(
     folder: str | Path, files: Mapping[str, str | bytes], meta: Mapping[str, Any]
 ) -> dict[str, Any]:
@@ -315,15 +358,9 @@ def recover_file_set(folder: str | Path) -> str:
     state = "complete"
     pending = folder / PENDING
     if pending.exists():
-        try:
-            manifest = json.loads(pending.read_text())
-        except (OSError, ValueError):
-            manifest = None
-        if isinstance(manifest, dict) and "token" in manifest and "files" in manifest:
-            _commit(folder, manifest)
-            state = "rolled forward"
-        else:  # the pending manifest itself is written atomically; this is not ours
-            raise FileSafetyError(f"{str(pending)!r} is not a servogym pending manifest.")
+        manifest = read_manifest(pending)  # written atomically: a bad one is not ours
+        _commit(folder, manifest)
+        state = "rolled forward"
     for stray in folder.iterdir():
         if _TEMP.match(stray.name):
             stray.unlink(missing_ok=True)
@@ -344,13 +381,10 @@ def check_file_set(folder: str | Path, names: Iterable[str] | None = None) -> di
             f"the outputs in {str(folder)!r} were being replaced when their writer stopped "
             f"({PENDING} is there); run the same `servogym tune` with --resume to finish them."
         )
-    try:
-        manifest = json.loads((folder / MANIFEST).read_text())
-    except FileNotFoundError:
-        raise FileSafetyError(f"{str(folder)!r} has no {MANIFEST}.") from None
-    except (OSError, ValueError) as exc:
-        raise FileSafetyError(f"{str(folder / MANIFEST)!r} cannot be read: {exc}.") from None
-    files = manifest.get("files", {})
+    if not (folder / MANIFEST).exists():
+        raise FileSafetyError(f"{str(folder)!r} has no {MANIFEST}.")
+    manifest = read_manifest(folder / MANIFEST)
+    files = manifest["files"]
     for name in files if names is None else names:
         entry = files.get(name)
         if entry is None:
@@ -370,17 +404,7 @@ def check_against_manifest(path: str | Path) -> None:
     """Refuse a file whose folder's manifest lists it with another hash (or is pending)."""
     path = Path(path)
     folder = path.parent
-    if (folder / PENDING).exists():
-        try:
-            pending = json.loads((folder / PENDING).read_text())
-        except (OSError, ValueError):
-            pending = {}
-        if path.name in pending.get("files", {}):
-            check_file_set(folder)  # raises the pending message
-    if (folder / MANIFEST).exists():
-        try:
-            listed = path.name in json.loads((folder / MANIFEST).read_text()).get("files", {})
-        except (OSError, ValueError, AttributeError):
-            listed = False
-        if listed:
-            check_file_set(folder, [path.name])
+    if (folder / PENDING).exists() and path.name in read_manifest(folder / PENDING)["files"]:
+        check_file_set(folder)  # raises the pending message
+    if (folder / MANIFEST).exists() and path.name in read_manifest(folder / MANIFEST)["files"]:
+        check_file_set(folder, [path.name])

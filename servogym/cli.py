@@ -125,15 +125,19 @@ def _finite(text: str, option: str, name: str) -> float:
     return value
 
 
-def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
-    out: dict[str, float] = {}
+def _key_values(items: list[str] | None, option: str) -> dict[str, int | float]:
+    """``NAME=VALUE`` items; an integer literal stays an integer (as ``tune`` reads it)."""
+    out: dict[str, int | float] = {}
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             _fail(f"{option} takes NAME=VALUE; got {option} {item!r}.")
         if key.strip() in out:
             _fail(f"{option} names {key.strip()} twice; got {option} {item!r}.")
-        out[key.strip()] = _finite(value, option, key.strip())
+        try:
+            out[key.strip()] = int(value.strip())
+        except ValueError:
+            out[key.strip()] = _finite(value, option, key.strip())
     return out
 
 
@@ -153,7 +157,7 @@ def chips(
                     "model": model.name,
                     "description": getattr(model, "description", ""),
                     "sample_time_s": family.sample_time_s(family.make_params(model.name)),
-                    "export_formats": list(family.formats),
+                    "export_formats": list(family.formats_for(model.name)),
                     "parameters": family.parameter_space(model.name).describe(),
                 }
             )
@@ -250,7 +254,11 @@ def export(
             check_target(out, inputs=[params_file], force=force)
         loaded = read_params_file(params_file, input_format, chip, what="PARAMS_FILE")
         family = family_of(loaded.params)
-        target = fmt if fmt is not None else family.native_format(loaded.params.model)
+        target = (
+            _export_format(fmt, family, loaded.params.model)
+            if fmt is not None
+            else family.native_format(loaded.params.model)
+        )
         kw = {} if axis is None else {"axis": axis}
         text = family.export(loaded.params, target, assumptions=loaded.assumptions, **kw)
         if out is not None:
@@ -266,6 +274,35 @@ def export(
         typer.echo(text, nl=not text.endswith("\n"))
     else:
         console.print(f"wrote {out}", highlight=False)
+
+
+MAX_SUBSTEPS = 1024
+"""Most RK4 substeps per servo tick ``simulate --substeps`` takes."""
+
+MOVE_LIMITS = {
+    "DISTANCE": (0.0, 1e4),
+    "MAX_VELOCITY": (0.0, 1e5),
+    "MAX_ACCELERATION": (0.0, 1e8),
+    "SETTLE_S": (0.0, 60.0),
+}
+"""Legal ranges of ``simulate --move``'s fields (joint units: rad or m; s)."""
+
+
+def _export_format(fmt: str, family, model: str) -> str:
+    """``export --format`` checked (any case) against the formats the chip model takes."""
+    import difflib
+
+    from servogym.chips import ParameterError
+
+    allowed = family.formats_for(model)
+    if fmt.lower() in allowed:
+        return fmt.lower()
+    close = difflib.get_close_matches(fmt.lower(), list(allowed), n=1)
+    hint = f" Did you mean {close[0]!r}?" if close else ""
+    listed = ", ".join(f"{f} ({family.file_extensions.get(f, '')})" for f in allowed)
+    raise ParameterError(
+        f"--format must be one of {listed} for the {model}; got --format {fmt!r}.{hint}"
+    )
 
 
 @app.command()
@@ -306,16 +343,27 @@ def simulate(
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics as JSON.")] = False,
 ) -> None:
     """Simulate a chip axis on a plant along moves; print metrics, write a response plot."""
+    from servogym._cli_common import check_writable_folder
+    from servogym._files import write_atomic
     from servogym.chips import ParameterError, family_of, read_params_file
     from servogym.plants import PlantParameterError
     from servogym.sim import REFERENCE_SUBSTEPS, Evaluator, MoveSpec, Scenario
     from servogym.sim._plot import plot_response
 
+    if substeps is not None and not 1 <= substeps <= MAX_SUBSTEPS:
+        _fail(
+            f"--substeps must satisfy 1 <= --substeps <= {MAX_SUBSTEPS}; got --substeps {substeps}."
+        )
+    if substeps is not None and reference:
+        _fail(
+            f"--substeps {substeps} contradicts --reference (the reference integration is RK4 x "
+            f"{REFERENCE_SUBSTEPS}); give one of them."
+        )
+    if params_format is not None and params is None:
+        _fail(f"--format {params_format!r} names the format of --params; give --params too.")
     try:
         loaded = read_params_file(params, params_format, chip, what="--params") if params else None
-        model = loaded.params.model if loaded else (chip or "MC2100")
-        if substeps is not None and substeps < 1:
-            _fail(f"--substeps must be an integer >= 1; got --substeps {substeps}.")
+        model = loaded.params.model if loaded else (chip if chip is not None else "MC2100")
         moves = []
         for text in move or []:
             fields = text.split(",")
@@ -326,11 +374,17 @@ def simulate(
                 )
             names = ("DISTANCE", "MAX_VELOCITY", "MAX_ACCELERATION", "SETTLE_S")
             parts = [_finite(x, "--move", n) for x, n in zip(fields, names, strict=False)]
-            for n, value in zip(names[1:], parts[1:], strict=False):
-                low_ok = value >= 0 if n == "SETTLE_S" else value > 0
-                if not low_ok:
-                    rule = ">= 0" if n == "SETTLE_S" else "> 0"
-                    _fail(f"--move {n} must be {rule}; got {n}={value:g} in --move {text!r}.")
+            for n, value in zip(names, parts, strict=False):
+                low, high = MOVE_LIMITS[n]
+                ok = (abs(value) <= high if n == "DISTANCE" else value <= high) and (
+                    n == "DISTANCE" or (value >= low if n == "SETTLE_S" else value > low)
+                )
+                if not ok:
+                    rule = (
+                        f"|{n}| <= {high:g}" if n == "DISTANCE"
+                        else f"{low:g} {'<=' if n == 'SETTLE_S' else '<'} {n} <= {high:g}"
+                    )  # fmt: skip
+                    _fail(f"--move {n} must satisfy {rule}; got {n}={value:g} in --move {text!r}.")
             moves.append(MoveSpec(*parts))
         scenario = Scenario(
             model, plant, plant_values=_key_values(plant_param, "--plant-param"),
@@ -338,6 +392,7 @@ def simulate(
             assumptions=loaded.assumptions if loaded else None,
         )  # fmt: skip
         chip_params = loaded.params if loaded else scenario.default_params()
+        check_writable_folder("--out", out)  # before the work, not after it
         result = Evaluator(scenario).evaluate(chip_params, traces=True)
     except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
         _fail(str(exc))
@@ -345,8 +400,7 @@ def simulate(
     summary = {"chip_model": model, "chip_family": family_of(chip_params).name, "plant": plant,
                **result.summary()}  # fmt: skip
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "metrics.json").write_text(json.dumps(summary, indent=2))
+        write_atomic(out / "metrics.json", json.dumps(summary, indent=2) + "\n")
         plot_response([(model, result)], out / "response.png", f"{model} on {plant}")
     except OSError as exc:
         _fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
@@ -431,6 +485,7 @@ def check(
     within the following-error and saturation limits and above the margin minima. Exit
     code 0 when it passes, 1 when it fails.
     """
+    from servogym._cli_common import check_number, check_writable_folder
     from servogym._files import write_atomic
     from servogym.autotune._cli import check_table
     from servogym.chips import ParameterError, read_params_file
@@ -438,6 +493,10 @@ def check(
     from servogym.sim import Scenario
     from servogym.sim._check import CheckLimits, check_params
 
+    check_number("--min-gain-margin", min_gain_margin, low=0, high=60)
+    check_number("--min-phase-margin", min_phase_margin, low=0, high=90)
+    check_number("--max-following-error", max_following_error, low=0, low_open=True)
+    check_number("--max-saturation", max_saturation, low=0, high=1)
     try:
         loaded = read_params_file(params_file, model=chip, what="PARAMS")
         if chip is not None and chip.upper() != loaded.params.model.upper():
@@ -453,7 +512,7 @@ def check(
             assumptions=loaded.assumptions,
         )  # fmt: skip
         folder = out or params_file.with_name(params_file.stem + "_check")
-        folder.mkdir(parents=True, exist_ok=True)
+        check_writable_folder("--out", folder)  # before the check, not after it
         report = check_params(loaded.params, scenario, limits, bode_path=folder / "bode.png")
     except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
         _fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
@@ -482,11 +541,13 @@ def _register_subcommands() -> None:
     from servogym.agents._cli import evaluate_command, train_command
     from servogym.autotune._cli import tune_command
     from servogym.autotune.bench._cli import benchmark_command
+    from servogym.calibrate._cli import calibrate_command
 
     app.command("tune")(tune_command)
     app.command("train")(train_command)
     app.command("evaluate")(evaluate_command)
     app.command("benchmark")(benchmark_command)
+    app.command("calibrate")(calibrate_command)
 
 
 _register_subcommands()

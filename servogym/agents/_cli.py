@@ -20,15 +20,15 @@ def _fail(message: str) -> None:
 
 
 def _json_option(text: str | None, name: str) -> dict[str, Any]:
+    from servogym._input import InputError, parse_json
+
     if not text:
         return {}
+    shown = repr(text) if len(text) <= 80 else repr(text[:60] + "...")
     try:
-        value = json.loads(text)
-    except json.JSONDecodeError as e:
-        _fail(f"{name} must be a JSON object, e.g. '{{\"n_moves\": 8}}'; got {text!r} ({e}).")
-    if not isinstance(value, dict):
-        _fail(f"{name} must be a JSON object; got {text!r}.")
-    return value
+        return parse_json(text, name)
+    except InputError as e:
+        _fail(f"{e} E.g. {name} '{{\"n_moves\": 8}}'; got {name} {shown}.")
 
 
 def _check_env_id(env: str) -> None:
@@ -186,12 +186,14 @@ def evaluate_command(
             _fail(f"--model {str(model)!r} does not exist.")
         cfg = model.parent / "config.json"
         if cfg.exists():
+            from servogym.agents._train import read_config
+
             try:
-                config = json.loads(cfg.read_text())
-                env = env or config["env_id"]
-                kwargs.update(config.get("env_kwargs", {}))
-            except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-                _fail(f"--model {str(model)!r}: its config.json cannot be read: {exc!r}.")
+                config = read_config(cfg, f"--model {str(model)!r}")
+            except ValueError as exc:
+                _fail(str(exc))
+            env = env or config["env_id"]
+            kwargs.update(config["env_kwargs"])
     if env is None:
         _fail("give --env, or a --model whose run directory has a config.json")
     _check_env_id(env)
@@ -247,17 +249,15 @@ def evaluate_command(
 def _fixed_values(path: Path, chip_model: str) -> dict[str, Any]:
     """Register values of a --fixed file: a parameter file in any format servogym writes,
     or a plain JSON object of register values."""
+    from servogym._input import read_text
     from servogym.chips import ParameterError, read_params_file
     from servogym.chips._paramfile import strict_json
 
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        _fail(f"--fixed {str(path)!r} cannot be read: {getattr(exc, 'strerror', None) or exc}.")
-    try:
+        text = read_text(path, "--fixed")  # regular files only, bounded
         doc = strict_json(text) if text.lstrip().startswith("{") else None
     except ValueError as exc:
-        _fail(f"--fixed {str(path)!r}: {exc}")
+        _fail(f"--fixed {str(path)!r}: {exc}" if str(path) not in str(exc) else str(exc))
     if isinstance(doc, dict) and "format" not in doc:
         return doc  # register values only; the env validates them
     try:

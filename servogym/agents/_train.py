@@ -237,6 +237,36 @@ class UnsafeModelError(ValueError):
     """A saved model cannot be loaded without running code from the file (or is damaged)."""
 
 
+def read_config(path: str | Path, what: str = "--model") -> dict[str, Any]:
+    """A run's ``config.json``, read bounded and schema-checked (an :class:`UnsafeModelError`
+    naming the file and the entry otherwise)."""
+    from servogym._input import InputError, read_json
+
+    try:
+        config = read_json(path, f"{what}: the run's config.json")
+    except InputError as exc:
+        raise UnsafeModelError(str(exc)) from None
+    config.setdefault("env_kwargs", {})
+    config.setdefault("algo_kwargs", {})
+    config.setdefault("residual", None)
+    checks = (
+        ("algo", lambda v: isinstance(v, str) and v.lower() in ALGOS, f"one of {', '.join(ALGOS)}"),
+        ("env_id", lambda v: isinstance(v, str) and bool(v), "an env id"),
+        ("env_kwargs", lambda v: isinstance(v, dict), "a JSON object"),
+        ("algo_kwargs", lambda v: isinstance(v, dict), "a JSON object"),
+        ("residual", lambda v: v is None or (isinstance(v, dict) and {"center", "scale"} <= set(v)),
+         "null or an object with center and scale"),
+    )  # fmt: skip
+    for key, ok, rule in checks:
+        if key not in config or not ok(config[key]):
+            got = f"{key}={config[key]!r:.60}" if key in config else f"no {key}"
+            raise UnsafeModelError(
+                f"{what}: {str(path)!r} is not a servogym train config.json: {key} must be "
+                f"{rule}; got {got}."
+            )
+    return config
+
+
 def load_model(path: str | Path):
     """Load a model saved by :func:`train` without unpickling anything from the file.
 
@@ -264,13 +294,8 @@ def load_model(path: str | Path):
             f"from its run's config.json and loads only the weights, so it never unpickles a "
             f"model file. Evaluate the run folder `servogym train` wrote."
         )
-    try:
-        config = json.loads(cfg.read_text())
-        algo, env_id = config["algo"], config["env_id"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise UnsafeModelError(
-            f"{str(cfg)!r} is not a servogym train config.json: {exc}."
-        ) from None
+    config = read_config(cfg, f"--model {str(path)!r}")
+    algo, env_id = config["algo"].lower(), config["env_id"]
     try:
         with zipfile.ZipFile(path) as zf:
             raw = zf.read("policy.pth")
@@ -314,5 +339,5 @@ def load_policy(path: str | Path):
 
     path = Path(path)
     cfg = path.parent / "config.json"
-    residual = json.loads(cfg.read_text()).get("residual") if cfg.exists() else None
+    residual = read_config(cfg)["residual"] if cfg.exists() else None
     return ModelPolicy(load_model(path), residual)

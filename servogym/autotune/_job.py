@@ -139,6 +139,11 @@ def parse_assignments(items: list[str] | None, what: str) -> dict[str, str]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip() or not value.strip():
             raise TuneError(f"{what} takes NAME=VALUE (e.g. {what} bias=0); got {item!r}.")
+        if key.strip() in out:
+            raise TuneError(
+                f"{what} names {key.strip()} twice ({key.strip()}={out[key.strip()]} and "
+                f"{item.strip()}); give each name once."
+            )
         out[key.strip()] = value.strip()
     return out
 

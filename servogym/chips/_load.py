@@ -180,22 +180,12 @@ def read_params_file(
         what: The option that named the file, for messages (``"--params"``).
     """
     from servogym._files import check_against_manifest
+    from servogym._input import read_text
 
     path = Path(path)
     if path.is_dir():
         raise ParameterError(f"{what} {str(path)!r} is a folder; give a parameter file.")
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise ParameterError(f"{what} {str(path)!r} does not exist.") from None
-    except OSError as exc:
-        raise ParameterError(f"{what} {str(path)!r} cannot be read: {exc.strerror}.") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ParameterError(
-            f"{what} {str(path)!r} is not a text file (byte {exc.start} is not UTF-8)."
-        ) from None
+    text = read_text(path, what)  # regular files only, bounded
     try:
         check_against_manifest(path)
         return load_params_file(text, fmt, model, axis)

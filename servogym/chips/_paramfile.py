@@ -480,7 +480,13 @@ def _no_constant(name: str) -> Any:
 
 
 def strict_json(text: str | bytes) -> Any:
-    """``json.loads`` that refuses a key named twice in an object, NaN and infinities."""
+    """``json.loads`` that refuses a key named twice in an object, NaN and infinities, and
+    nesting deeper than :data:`servogym._input.MAX_JSON_DEPTH` (a ``ParameterError``)."""
+    from servogym._input import json_depth_error
+
+    why = json_depth_error(text)
+    if why is not None:
+        raise ParameterError(f"a parameter file must be plain JSON; got {why}.")
     return json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=_no_constant)
 
 

@@ -15,14 +15,22 @@ import typer
 DEFAULT_TUNERS = "tpe,gp,cmaes,random,sobol,vendor-step,relay,model-based"
 
 
-def _ints(text: str, option: str) -> list[int]:
+MAX_BUDGET = 10_000
+"""Largest benchmark budget (evaluations per job)."""
+
+
+def _ints(text: str, option: str, high: int = MAX_BUDGET) -> list[int]:
     try:
         out = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
         out = []
-    if not out or any(b < 1 for b in out):
-        raise typer.BadParameter(f"{option} takes positive integers, comma separated; got {text!r}")
-    return sorted(set(out))
+    if not out or any(b < 1 or b > high for b in out):
+        raise typer.BadParameter(
+            f"{option} takes integers 1 <= {option} <= {high}, comma separated; got {text!r}"
+        )
+    if len(set(out)) != len(out):
+        raise typer.BadParameter(f"{option} names a budget twice; got {text!r}")
+    return sorted(out)
 
 
 def benchmark_command(
@@ -79,7 +87,7 @@ def benchmark_command(
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from servogym._cli_common import check_count, fail
+    from servogym._cli_common import check_count, check_writable_folder, fail
     from servogym.autotune.bench._reference import (
         load_best_known,
         refine_from_runs,
@@ -102,8 +110,14 @@ def benchmark_command(
     console = Console(stderr=as_json)
     check_count("--seeds", seeds)
     check_count("--workers", workers)
-    if not [t for t in tuners.split(",") if t.strip()]:
+    tuner_list = [t.strip() for t in tuners.split(",")]
+    if not [t for t in tuner_list if t]:
         fail(f"--tuners must name at least one tuner; got --tuners {tuners!r}.")
+    if "" in tuner_list:
+        fail(f"--tuners takes tuner names separated by single commas; got --tuners {tuners!r}.")
+    twice = sorted({t for t in tuner_list if tuner_list.count(t) > 1})
+    if twice:
+        fail(f"--tuners names {', '.join(twice)} twice; got --tuners {tuners!r}.")
     if out.exists() and not out.is_dir():
         fail(f"--out {str(out)!r} is a file; give a folder for the benchmark.")
     try:
@@ -114,18 +128,65 @@ def benchmark_command(
     if instance:
         for i in instance:
             try:
-                s.spec(i)  # raises with close matches
+                spec = s.spec(i)  # raises with close matches
             except (KeyError, ValueError) as exc:
                 fail(f"--instance: {exc.args[0] if isinstance(exc, KeyError) else exc}")
+            if i not in ids:
+                fail(
+                    f"--instance {i!r} is in the {spec.split} split, not in --split {split}; "
+                    f"pass --split {spec.split} or --split all."
+                )
+            if instance.count(i) > 1:
+                fail(f"--instance names {i!r} twice.")
         ids = [i for i in ids if i in set(instance)]
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        fail(f"--out {str(out)!r} cannot be created: {exc.strerror or exc}.")
+    if seed_from is not None:
+        if not reference:
+            fail(f"--seed-from {str(seed_from)!r} applies only with --reference.")
+        if not seed_from.is_dir():
+            what = "does not exist" if not seed_from.exists() else "is not a folder"
+            fail(f"--seed-from {str(seed_from)!r} {what}; give a benchmark's --out folder.")
+    if reference:
+        bad = [o for o, v in (("--tuners", tuners != DEFAULT_TUNERS), ("--budget", budget != "50"),
+               ("--seeds", seeds != 5), ("--limit", bool(limit))) if v]  # fmt: skip
+        if bad:
+            fail(
+                f"{bad[0]} does not apply to --reference (the reference search runs its own "
+                f"plan); drop {', '.join(bad)}."
+            )
+    if not reference:
+        budgets = _ints(budget, "--budget")
+        names = set(tuner_list)
+        try:
+            from servogym.autotune._tuners import get_tuner
+
+            for t in tuner_list:
+                get_tuner(t)  # raises with the list and close matches
+            limits = dict(TunerLimit.parse(x) for x in limit or [])
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc)) from None
+        for x in limit or []:
+            name = x.partition(":")[0].strip()
+            if name not in names:
+                fail(f"--limit {x!r} names {name!r}, which is not in --tuners {tuners!r}.")
+            if sum(y.partition(":")[0].strip() == name for y in limit or []) > 1:
+                fail(f"--limit names {name!r} twice; got --limit {x!r}.")
+    check_writable_folder("--out", out)
     if reference and seed_from is not None:
         t0 = time.perf_counter()
         path = out / f"{suite}.json"
-        recs = [r for r in load_results(seed_from) if r["instance"] in set(ids)]
+        try:
+            recs = [r for r in load_results(seed_from) if r["instance"] in set(ids)]
+        except ValueError as exc:
+            fail(f"--seed-from {str(seed_from)!r}: {exc}")
+        if not recs:
+            fail(
+                f"--seed-from {str(seed_from)!r} holds no finished benchmark job of the "
+                f"{len(ids)} instance(s) asked (runs.jsonl or jobs/); give a benchmark's --out."
+            )
+        if dry_run:
+            console.print(f"stage 2 would refine {len(ids)} instances from {len(recs)} runs "
+                          f"-> {path} (dry run: nothing started)")  # fmt: skip
+            return
         doc = refine_from_runs(suite, recs, path, workers=workers, run_label=str(seed_from))
         st2 = doc["method"]["stage2"]
         n_ref, n_imp = len(st2["instances_refined"]), len(st2["instances_improved"])
@@ -136,6 +197,9 @@ def benchmark_command(
         t0 = time.perf_counter()
         path = out / f"{suite}.json"
         console.print(f"reference search on {len(ids)} instances -> {path}")
+        if dry_run:
+            console.print("dry run: the search is not started")
+            return
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                       TimeElapsedColumn(), console=console) as bar:  # fmt: skip
             task = bar.add_task("reference", total=len(ids))
@@ -148,12 +212,6 @@ def benchmark_command(
             run_reference(suite, path, split=split, workers=workers, on_done=done)
         console.print(f"done in {time.perf_counter() - t0:.0f} s")
         return
-    budgets = _ints(budget, "--budget")
-    tuner_list = [t.strip() for t in tuners.split(",") if t.strip()]
-    try:
-        limits = dict(TunerLimit.parse(x) for x in limit or [])
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc)) from None
     instances = [s.instance(i) for i in ids]
     from servogym.autotune._session import TuneError
 
@@ -162,13 +220,20 @@ def benchmark_command(
     except TuneError as exc:
         raise typer.BadParameter(str(exc)) from None
     # Measure one evaluation of each instance for the estimate.
+    # CPU time (not wall time: the machine may be busy), the median of three after a warm-up.
     eval_s = {}
     for inst in instances:
         inst.evaluate({})
-        t = time.perf_counter()
-        inst.evaluate({})
-        eval_s[inst.id] = time.perf_counter() - t
-    todo = [j for j in jobs if load_job(out, j) is None]
+        samples = []
+        for _ in range(3):
+            t = time.process_time()
+            inst.evaluate({})
+            samples.append(time.process_time() - t)
+        eval_s[inst.id] = sorted(samples)[1]
+    try:
+        todo = [j for j in jobs if load_job(out, j) is None]
+    except ValueError as exc:
+        fail(f"--out {str(out)!r}: {exc}")
     est = estimate_seconds(todo, eval_s)
     config = {
         "suite": suite, "split": split, "tuners": tuner_list, "budgets": budgets,
@@ -181,7 +246,8 @@ def benchmark_command(
         f"{', '.join(tuner_list)}, budgets "
         f"{budgets}, {seeds} seeds); {len(skipped)} (tuner, instance) pairs n/a. Estimate: "
         f"{est:.0f} CPU-s, about {est / max(workers, 1) / 60:.1f} min on {workers} process(es) "
-        f"(mean evaluation {1000 * sum(eval_s.values()) / len(eval_s):.1f} ms)."
+        f"(mean evaluation {1000 * sum(eval_s.values()) / len(eval_s):.1f} ms of CPU, median of "
+        f"3 per instance)."
     )
     if dry_run:
         return

@@ -87,14 +87,23 @@ class TunerLimit:
         for item in rest.split(",") if sep else []:
             key, eq, value = item.partition("=")
             key = key.strip()
-            if not eq or key not in ("seeds", "budget", "instances") or not value.strip().isdigit():
+            if (
+                not eq
+                or key not in ("seeds", "budget", "instances")
+                or not value.strip().isdigit()
+                or int(value) < 1
+            ):
                 raise ValueError(
                     "--limit takes TUNER:seeds=N,budget=B,instances=K (any of the three, "
-                    f"positive integers); got {text!r}."
+                    f"integers >= 1); got --limit {text!r}."
                 )
+            if key in kw:
+                raise ValueError(f"--limit names {key} twice; got --limit {text!r}.")
             kw[key] = int(value)
         if not sep or not kw or not name.strip():
-            raise ValueError(f"--limit takes TUNER:seeds=N,budget=B,instances=K; got {text!r}.")
+            raise ValueError(
+                f"--limit takes TUNER:seeds=N,budget=B,instances=K; got --limit {text!r}."
+            )
         return name.strip(), cls(**kw)
 
     def pick(self, items: Sequence[Any]) -> list[Any]:
@@ -250,15 +259,17 @@ def run_job(job: Job, out_dir: str) -> dict[str, Any]:
 
 def load_job(out_dir: str | Path, job: Job) -> dict[str, Any] | None:
     """The result of a finished job, or ``None``."""
+    from servogym._input import read_json
+
     packed = _packed(Path(out_dir))
     if job.key in packed:
         return packed[job.key]
     path = Path(out_dir) / "jobs" / job.key
-    try:
-        rec = json.loads(path.read_text())
-    except (OSError, ValueError):
+    try:  # a damaged record counts as not finished: the job runs again and replaces it
+        rec = read_json(path, "a job record")
+    except ValueError:
         return None
-    return rec if rec.get("format") == FORMAT_VERSION else None
+    return rec if _is_record(rec) else None
 
 
 RUNS_FILE = "runs.jsonl"
@@ -275,13 +286,31 @@ def _packed(out_dir: Path) -> dict[str, dict[str, Any]]:
 
 @functools.lru_cache(maxsize=4)
 def _read_packed(path: str, _mtime_ns: int, _size: int) -> dict[str, dict[str, Any]]:
+    from servogym._input import InputError, parse_json, read_text
+
     out = {}
-    for line in Path(path).read_text().splitlines():
+    text = read_text(path, "the benchmark's records", max_bytes=1 << 30)
+    for n, line in enumerate(text.splitlines(), start=1):
         if line.strip():
-            rec = json.loads(line)
+            rec = parse_json(line, f"{path!r} line {n}")
+            if not _is_record(rec):
+                raise InputError(
+                    f"{path!r} line {n} is not a benchmark job record (tuner, instance, seed, "
+                    f"budget); remove the line or the file (its jobs then run again)."
+                )
             job = Job(rec["tuner"], rec["instance"], rec["seed"], rec["budget"])
             out[job.key] = rec
     return out
+
+
+def _is_record(rec: Any) -> bool:
+    return (
+        isinstance(rec, dict)
+        and rec.get("format") == FORMAT_VERSION
+        and isinstance(rec.get("tuner"), str)
+        and isinstance(rec.get("instance"), str)
+        and all(isinstance(rec.get(k), int) for k in ("seed", "budget"))
+    )
 
 
 def pack_results(out_dir: str | Path) -> Path:
@@ -298,13 +327,15 @@ def pack_results(out_dir: str | Path) -> Path:
 
 def load_results(out_dir: str | Path) -> list[dict[str, Any]]:
     """Every finished job's record: ``out_dir/runs.jsonl`` and ``out_dir/jobs``."""
+    from servogym._input import read_json
+
     found = dict(_packed(Path(out_dir)))
     for path in sorted((Path(out_dir) / "jobs").rglob("*.json")):
-        try:
-            rec = json.loads(path.read_text())
+        try:  # a damaged record is a job that has not finished (it runs again)
+            rec = read_json(path, "a job record")
         except ValueError:
             continue
-        if rec.get("format") == FORMAT_VERSION:
+        if _is_record(rec):
             job = Job(rec["tuner"], rec["instance"], rec["seed"], rec["budget"])
             found[job.key] = rec
     return list(found.values())
