@@ -141,6 +141,13 @@ def _key_values(items: list[str] | None, option: str) -> dict[str, int | float]:
     return out
 
 
+def _plant_values(plant_file: Path | None, plant: str, items: list[str] | None) -> dict:
+    """A --plant-file's values (servogym calibrate's plant.json) with --plant-param on top."""
+    from servogym.calibrate import plant_values
+
+    return plant_values(plant_file, plant, _key_values(items, "--plant-param"))
+
+
 @app.command()
 def chips(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,
@@ -315,6 +322,13 @@ def simulate(
         list[str] | None,
         typer.Option("--plant-param", help="Plant parameter NAME=VALUE (repeatable)."),
     ] = None,
+    plant_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--plant-file",
+            help="A plant.json from `servogym calibrate`: its values, --plant-param on top.",
+        ),
+    ] = None,
     params: Annotated[
         Path | None,
         typer.Option(help=PARAMS_FILE_HELP + " Default: the chip's defaults."),
@@ -387,7 +401,7 @@ def simulate(
                     _fail(f"--move {n} must satisfy {rule}; got {n}={value:g} in --move {text!r}.")
             moves.append(MoveSpec(*parts))
         scenario = Scenario(
-            model, plant, plant_values=_key_values(plant_param, "--plant-param"),
+            model, plant, plant_values=_plant_values(plant_file, plant, plant_param),
             moves=tuple(moves), substeps=REFERENCE_SUBSTEPS if reference else substeps,
             assumptions=loaded.assumptions if loaded else None,
         )  # fmt: skip
@@ -451,6 +465,13 @@ def check(
         list[str] | None,
         typer.Option("--plant-param", help="Plant parameter NAME=VALUE (repeatable)."),
     ] = None,
+    plant_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--plant-file",
+            help="A plant.json from `servogym calibrate`: its values, --plant-param on top.",
+        ),
+    ] = None,
     min_gain_margin: Annotated[
         float, typer.Option("--min-gain-margin", help="Smallest gain margin (dB).")
     ] = 6.0,
@@ -508,7 +529,8 @@ def check(
             max_saturation=max_saturation,
         )
         scenario = Scenario(
-            loaded.params.model, plant, plant_values=_key_values(plant_param, "--plant-param"),
+            loaded.params.model, plant,
+            plant_values=_plant_values(plant_file, plant, plant_param),
             assumptions=loaded.assumptions,
         )  # fmt: skip
         folder = out or params_file.with_name(params_file.stem + "_check")
