@@ -242,9 +242,12 @@ class TuneProblem:
             )
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ParameterError(f"seed must be an integer >= 0; got seed={self.seed!r}.")
-        if self.constraints.margins and not self.scenario.margins:
-            # margin constraints need every evaluation to compute the margins
-            object.__setattr__(self, "scenario", dataclasses.replace(self.scenario, margins=True))
+        sc = self.scenario
+        if self.constraints.margins and not (sc.margins and sc.margin_latencies == "every"):
+            # margin constraints need every evaluation to compute the margins, at every
+            # loop-latency choice (the check's latency cases)
+            object.__setattr__(self, "scenario", dataclasses.replace(
+                sc, margins=True, margin_latencies="every"))  # fmt: skip
 
     @property
     def multi_objective(self) -> bool:

@@ -19,7 +19,7 @@ from servogym.chips._family import Move, get_chip
 from servogym.plants import check_motor, get_plant
 from servogym.sim._margins import Margins
 from servogym.sim._metrics import EpisodeMetrics
-from servogym.sim._operating import operating_margins
+from servogym.sim._operating import operating_margins, severity
 from servogym.sim._runner import EpisodeResult, ServoLoop
 
 COST_CAP = 100.0
@@ -139,6 +139,9 @@ class Scenario:
             latency among them.
         margins: Whether each evaluation also computes the loop's stability margins on its
             plant instance (``Evaluation.margins``; the tuners' margin constraints).
+        margin_latencies: ``"own"``: the margins at the scenario's loop latency;
+            ``"every"``: the worst over every choice of the chip's ``loop_latency``
+            assumption, as the check computes them (``servogym tune``'s constraints).
         plant_ranges: ``name -> (low, high)``: the part of a parameter's legal range a
             randomised draw takes it from (``--plant-range NAME=LO:HI``), instead of the
             family's default sampling range; a parameter given a range is drawn even if the
@@ -164,12 +167,18 @@ class Scenario:
     substeps: int | None = None
     assumptions: Any = None
     margins: bool = False
+    margin_latencies: str = "own"
     plant_ranges: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     motor_check: bool = True
 
     def __post_init__(self) -> None:
         _, model = get_chip(self.chip_model)
         object.__setattr__(self, "chip_model", model)
+        if self.margin_latencies not in ("own", "every"):
+            raise ValueError(
+                "margin_latencies must be 'own' or 'every'; "
+                f"got margin_latencies={self.margin_latencies!r}."
+            )
         family = get_plant(self.plant)
         base = family.validate(dict(self.plant_values))
         ranges = family.validate_ranges(
@@ -279,16 +288,24 @@ class Evaluator:
 
     def margins(self, params: Any) -> Margins:
         """Stability and margins of ``params`` on the current plant instance, at its worst
-        holding point (``_operating``: the start and the end of every move).
+        holding point (``_operating``: the start and the end of every move) and, with
+        ``Scenario.margin_latencies="every"``, its worst loop-latency choice.
 
         The plant's linearisation at each point is computed once per plant instance, its
         discretisation once per plant instance, servo period and latency, then reused.
         """
         asm = self.scenario.assumptions or self.scenario.chip.default_assumptions()
-        return operating_margins(
-            self.scenario.chip, params, asm, self.plant, self.scenario.moves,
-            cache=self._linear,
-        ).margins  # fmt: skip
+        choices = [asm.loop_latency]
+        if self.scenario.margin_latencies == "every":
+            choices += [c for c in type(asm).CHOICES["loop_latency"] if c != asm.loop_latency]
+        found = [
+            operating_margins(
+                self.scenario.chip, params, dataclasses.replace(asm, loop_latency=c),
+                self.plant, self.scenario.moves, cache=self._linear,
+            ).margins
+            for c in choices
+        ]  # fmt: skip
+        return min(found, key=severity)
 
     def profiles(self, params: Any) -> list:
         """The chip profiles of the scenario's moves at this plant's encoder resolution."""

@@ -170,3 +170,25 @@ def test_the_load_spread_stops_at_what_the_motor_moves():
     free = Scenario("MC2100", "arm", plant_values={"payload_kg": top}, motor_check=False)
     names = [c.name for c in stress_cases(free, FAST)]
     assert "load +20%" in names
+
+
+def test_tuning_margins_are_the_worst_over_every_latency_as_the_check_has_them():
+    import dataclasses
+
+    from servogym.autotune import Constraints, SearchSpace, TuneProblem
+    from servogym.sim._operating import severity
+
+    scenario, params = tuned("TurboPMAC2", "rotary")
+    every = Evaluator(dataclasses.replace(scenario, margins=True, margin_latencies="every"))
+    own = Evaluator(dataclasses.replace(scenario, margins=True))
+    asm = scenario.chip.default_assumptions()
+    per_latency = loop_margins(scenario, params, type(asm).CHOICES["loop_latency"])
+    worst = min((op.margins for op in per_latency.values()), key=severity)
+    assert every.margins(params) == worst
+    assert own.margins(params) == per_latency[asm.loop_latency].margins
+    assert worst.phase_margin_deg < own.margins(params).phase_margin_deg
+    problem = TuneProblem(scenario=scenario, space=SearchSpace.for_chip("TurboPMAC2"),
+                          constraints=Constraints())  # fmt: skip
+    assert problem.scenario.margins and problem.scenario.margin_latencies == "every"
+    with pytest.raises(ValueError, match="margin_latencies must be 'own' or 'every'"):
+        Scenario("MC2100", "rotary", margin_latencies="all")
