@@ -31,6 +31,14 @@ def tune_command(
         list[str] | None,
         typer.Option("--plant-param", help="Fixed plant parameter NAME=VALUE (repeatable)."),
     ] = None,
+    plant_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--plant-file",
+            help="A plant.json from `servogym calibrate`: its values fixed, --plant-param on "
+            "top, --plant-range names drawn instead.",
+        ),
+    ] = None,
     plant_range: Annotated[
         list[str] | None,
         typer.Option(
@@ -155,6 +163,7 @@ def tune_command(
     from servogym.autotune._job import TuneConfig, parse_fix, parse_plant_params, tune
     from servogym.autotune._session import TuneError
     from servogym.autotune._tuners import tuner_names
+    from servogym.calibrate import plant_values
     from servogym.chips._space import ParameterError
     from servogym.plants import get_plant, parse_plant_ranges
 
@@ -189,7 +198,12 @@ def tune_command(
             out=out,
             budget=budget,
             tuner=tuner,
-            plant_params=parse_plant_params(plant_param),
+            plant_params=plant_values(
+                plant_file,
+                plant,
+                parse_plant_params(plant_param),
+                drop=tuple(r.partition("=")[0].strip() for r in plant_range or ()),
+            ),
             plant_ranges=parse_plant_ranges(plant_range, get_plant(plant) if plant_range else None),
             seed=seed,
             workers=workers,

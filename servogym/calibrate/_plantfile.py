@@ -172,3 +172,30 @@ def plant_values(
     for name in drop:
         out.pop(name, None)
     return out
+
+
+_merged = plant_values
+
+
+def env_plant_values(
+    plant_file: str | Path | None,
+    plant: str,
+    scenario: Any,
+    plant_values: Mapping[str, float] | None,
+    plant_range: Mapping[str, Any] | None,
+) -> Mapping[str, float] | None:
+    """The envs' ``plant_values``: a ``plant_file``'s values, ``plant_values`` on top, the
+    names in ``plant_range`` left out (drawn); ``plant_values`` itself without a file.
+
+    Raises:
+        ValueError: a ``plant_file`` together with a ``scenario`` (which fixes the plant).
+        PlantFileError: a file that cannot be read (:func:`read_plant_file`).
+    """
+    if plant_file is None:
+        return plant_values
+    if scenario is not None:
+        raise ValueError(
+            "give plant_file or a scenario, not both (put the file's values into "
+            "Scenario.plant_values: servogym.calibrate.read_plant_file(path).values)"
+        )
+    return _merged(plant_file, plant, plant_values, drop=tuple(plant_range or ()))

@@ -131,6 +131,7 @@ class ScheduleEnv(gym.Env):
     | `plant` | from the id | str | plant family |
     | `scenario` | `None` | Scenario | overrides chip_model, plant, plant_values, scale |
     | `plant_values` | `{}` | dict (SI) | plant parameters held fixed |
+    | `plant_file` | `None` | path | a `servogym calibrate` plant.json; `plant_values` on top |
     | `plant_range` | `{}` | dict (SI) | name -> (low, high) the draws take a parameter from |
     | `sample_scale` | 1.0 | float (1) | width of the plant distribution (0 = nominal) |
     | `n_moves` | 8 | int (moves) | moves per episode (even: whole cycles) |
@@ -155,6 +156,7 @@ class ScheduleEnv(gym.Env):
         scenario: Scenario | None = None,
         plant_values: Mapping[str, float] | None = None,
         plant_range: Mapping[str, tuple[float, float]] | None = None,
+        plant_file: str | None = None,
         sample_scale: float = 1.0,
         n_moves: int = 8,
         cycle: PickAndPlace | None = None,
@@ -173,6 +175,9 @@ class ScheduleEnv(gym.Env):
             raise ValueError(f"n_moves must be an integer >= 1; got n_moves={n_moves!r}.")
         self.render_mode = render_mode
         self.n_moves = n_moves
+        from servogym.calibrate._plantfile import env_plant_values
+
+        plant_values = env_plant_values(plant_file, plant, scenario, plant_values, plant_range)
         self.scenario = make_scenario(
             chip_model, plant, scenario, plant_values, sample_scale, family, plant_range
         )

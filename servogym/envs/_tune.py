@@ -82,6 +82,7 @@ class TuneEnv(gym.Env):
     | `plant` | from the id | str | plant family |
     | `scenario` | `None` | Scenario | overrides chip_model, plant, plant_values, scale |
     | `plant_values` | `{}` | dict (SI) | plant parameters held fixed |
+    | `plant_file` | `None` | path | a `servogym calibrate` plant.json; `plant_values` on top |
     | `plant_range` | `{}` | dict (SI) | name -> (low, high) the draws take a parameter from |
     | `sample_scale` | 1.0 | float (1) | width of the plant distribution (0 = nominal) |
     | `params` | tunable registers | tuple[str] | registers the action sets |
@@ -106,6 +107,7 @@ class TuneEnv(gym.Env):
         scenario: Scenario | None = None,
         plant_values: Mapping[str, float] | None = None,
         plant_range: Mapping[str, tuple[float, float]] | None = None,
+        plant_file: str | None = None,
         sample_scale: float = 1.0,
         params: tuple[str, ...] | None = None,
         fixed: Mapping[str, Any] | None = None,
@@ -121,6 +123,9 @@ class TuneEnv(gym.Env):
                 f"got render_mode={render_mode!r}."
             )
         self.render_mode = render_mode
+        from servogym.calibrate._plantfile import env_plant_values
+
+        plant_values = env_plant_values(plant_file, plant, scenario, plant_values, plant_range)
         self.scenario = make_scenario(
             chip_model, plant, scenario, plant_values, sample_scale, family, plant_range
         )

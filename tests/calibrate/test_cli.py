@@ -138,3 +138,30 @@ def test_a_trace_from_another_chip_period_exits_2(files, tmp_path):
         "--params", str(files / "params.json"), "--out", str(tmp_path / "out"),
     ])  # fmt: skip
     assert result.exit_code == 2 and "error:" in result.output
+
+
+def test_the_envs_take_the_plant_file(calibrated):
+    from servogym.envs import ScheduleEnv, TuneEnv
+
+    _, out = calibrated
+    pf = read_plant_file(out / "plant.json")
+    env = TuneEnv("MC2100", "rotary", plant_file=str(out / "plant.json"),
+                  plant_values={"coulomb_friction_nm": 0.02})  # fmt: skip
+    fixed = env.scenario.plant_values
+    assert fixed["load_inertia_kgm2"] == pf.values["load_inertia_kgm2"]
+    assert fixed["coulomb_friction_nm"] == 0.02
+    env = ScheduleEnv("MC2100", "rotary", plant_file=str(out / "plant.json"),
+                      plant_range={"load_inertia_kgm2": (1e-4, 2e-4)})  # fmt: skip
+    assert "load_inertia_kgm2" not in env.scenario.plant_values
+    with pytest.raises(ValueError, match="plant_file or a scenario"):
+        TuneEnv(scenario=env.scenario, plant_file=str(out / "plant.json"))
+
+
+def test_tune_takes_the_plant_file(calibrated, tmp_path):
+    _, out = calibrated
+    result = runner.invoke(app, [
+        "tune", "--chip", "MC2100", "--plant", "arm", "--budget", "1", "--out",
+        str(tmp_path / "run"), "--plant-file", str(out / "plant.json"),
+    ])  # fmt: skip
+    assert result.exit_code == 2
+    assert "is a 'rotary' plant, but the command runs --plant arm" in result.output
