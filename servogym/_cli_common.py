@@ -6,6 +6,7 @@ hold ``[...]``), no wrapping at the terminal width, no traceback; the exit code 
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import NoReturn
 
@@ -17,15 +18,56 @@ def one_line(message: object) -> str:
     return " ".join(str(message).split())
 
 
-def fail(message: object) -> NoReturn:
-    """Print ``error: <message>`` on one line to stderr and exit with code 2."""
-    typer.echo(f"error: {one_line(message)}", err=True)
+def fail(message: object, options: Mapping[str, str] | None = None) -> NoReturn:
+    """Print ``error: <message>`` on one line to stderr and exit with code 2 (the password
+    of any database URL in it masked; the Python argument names of ``options`` replaced by
+    the command's options, see :func:`name_options`)."""
+    from servogym._input import mask_secrets
+
+    text = name_options(one_line(message), options) if options else one_line(message)
+    typer.echo(f"error: {mask_secrets(text)}", err=True)
     raise typer.Exit(code=2)
 
 
-def check_count(option: str, value: int | None, low: int = 1) -> None:
-    """Refuse a count below ``low`` (``--budget 0``, ``--workers -2``) in one line."""
-    if value is not None and value < low:
+def name_options(message: str, options: Mapping[str, str]) -> str:
+    """``message`` with the library's argument names replaced by the options a user typed.
+
+    ``{"min_gain_margin_db": "--min-gain-margin"}`` turns ``min_gain_margin_db must satisfy
+    0 <= min_gain_margin_db; got min_gain_margin_db=-3`` into ``--min-gain-margin must
+    satisfy 0 <= --min-gain-margin; got --min-gain-margin -3``. Only a message about the
+    argument (one holding ``name=``) is rewritten.
+    """
+    import re
+
+    for name in sorted(options, key=len, reverse=True):
+        option = options[name]
+        if not re.search(rf"(?<![\w.-]){re.escape(name)}=", message):
+            continue
+        message = re.sub(rf"(?<![\w.-]){re.escape(name)}=", f"{option} ", message)
+        message = re.sub(rf"(?<![\w.-]){re.escape(name)}(?![\w=-])", option, message)
+    return message
+
+
+def check_choice(option: str, value: str | None, check: Callable[[str], object]) -> None:
+    """Refuse a name ``check`` refuses (an unknown chip model, plant, tuner, env id) in one
+    line that starts with the option: ``--chip: unknown chip model 'MC9' ...``."""
+    if value is None:
+        return
+    try:
+        check(value)
+    except (KeyError, ValueError) as exc:
+        text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+        fail(f"{option}: {text}")
+
+
+def check_count(option: str, value: int | None, low: int = 1, high: int | None = None) -> None:
+    """Refuse a count below ``low`` (``--budget 0``, ``--workers -2``) or above ``high``
+    in one line naming the option, the value and the legal range."""
+    if value is None:
+        return
+    if high is not None and not low <= value <= high:
+        fail(f"{option} must satisfy {low} <= {option} <= {high}; got {option} {value}.")
+    if value < low:
         fail(f"{option} must be an integer >= {low}; got {option} {value}.")
 
 

@@ -46,6 +46,27 @@ PENDING = ".manifest.pending.json"
 
 SET_FORMAT = "servogym-file-set"
 
+LOCK = ".servogym.lock"
+"""Lock file of a set's folder: one writer (or recovery) at a time, across processes."""
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: Path):
+    """Hold an exclusive ``flock`` on ``folder/.servogym.lock`` (released by the OS when a
+    process dies), so two runs writing sets into one folder never rename each other's
+    temporary files or pending manifest."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no cross-process lock
+        yield
+        return
+    fd = os.open(folder / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
 
 class FileSafetyError(ParameterError):
     """A file cannot be written or read safely (the message says which and why)."""
@@ -306,7 +327,14 @@ def write_file_set(
         The manifest written.
     """
     folder = Path(folder)
-    recover_file_set(folder)
+    with _folder_lock(folder):
+        return _write_file_set(folder, files, meta)
+
+
+def _write_file_set(
+    folder: Path, files: Mapping[str, str | bytes], meta: Mapping[str, Any]
+) -> dict[str, Any]:
+    _recover(folder)
     token = secrets.token_hex(6)
     entries: dict[str, dict[str, Any]] = {}
     for name, data in files.items():
@@ -347,6 +375,7 @@ def _commit(folder: Path, manifest: Mapping[str, Any]) -> None:
 
 
 _TEMP = re.compile(r"^\..+\.(?:[0-9a-f]{12}|[a-z0-9_]{8})\.tmp$")  # ours and mkstemp's
+_OURS = re.compile(r"^\..+\.[0-9a-f]{12}\.tmp$")
 
 
 def recover_file_set(folder: str | Path) -> str:
@@ -355,16 +384,29 @@ def recover_file_set(folder: str | Path) -> str:
     folder = Path(folder)
     if not folder.is_dir():
         return "complete"
+    with _folder_lock(folder):
+        return _recover(folder)
+
+
+def _recover(folder: Path) -> str:
     state = "complete"
     pending = folder / PENDING
     if pending.exists():
         manifest = read_manifest(pending)  # written atomically: a bad one is not ours
         _commit(folder, manifest)
         state = "rolled forward"
+    now = _dt.datetime.now().timestamp()
     for stray in folder.iterdir():
-        if _TEMP.match(stray.name):
-            stray.unlink(missing_ok=True)
-            state = "cleaned" if state == "complete" else state
+        if not _TEMP.match(stray.name):
+            continue
+        # A set's temporary files (and its pending manifest's) are written under the folder
+        # lock held here: left over. Another writer's (write_atomic of trials.csv) may be in
+        # use by a live process: removed only once it is a minute old.
+        ours = _OURS.match(stray.name) or stray.name.startswith(f".{PENDING}.")
+        with contextlib.suppress(OSError):
+            if ours or now - stray.stat().st_mtime > 60:
+                stray.unlink(missing_ok=True)
+                state = "cleaned" if state == "complete" else state
     return state
 
 

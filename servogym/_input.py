@@ -133,10 +133,7 @@ def json_depth_error(text: str | bytes, max_depth: int = MAX_JSON_DEPTH) -> str 
         if token in "[{":
             depth += 1
             if depth > max_depth:
-                return (
-                    f"JSON nested more than {max_depth} deep (at character {match.start()}); "
-                    f"servogym's JSON inputs nest at most {max_depth} arrays and objects"
-                )
+                return f"JSON nested more than {max_depth} deep (at character {match.start()})"
         elif token in "]}":
             depth -= 1
     return None
@@ -204,23 +201,31 @@ def read_json(path: str | Path, what: str, *, expect: type | None = dict) -> Any
 # Secrets
 # --------------------------------------------------------------------------------------
 
-_URL_PASSWORD = re.compile(r"(?P<head>\b[a-zA-Z][\w+.-]*://[^:/@\s'\"]*:)[^@\s'\"]*(?=@)")
+# scheme://user:password@host: the password runs to the last "@" before the path
+_URL_PASSWORD = re.compile(r"(?P<head>\b[a-zA-Z][\w+.-]*://[^:/@\s'\"]*:)[^\s'\"/]*(?=@)")
 
 
 def mask_url(url: str) -> str:
-    """``url`` with its password replaced by ``***`` (SQLAlchemy's own rendering when it
-    parses the URL; a pattern otherwise)."""
-    try:
-        from sqlalchemy.engine import make_url
+    """``url`` with its password replaced by ``***`` (``postgresql://bob:***@host/db``).
 
-        parsed = make_url(url)
-        if parsed.password is not None:
-            return parsed.render_as_string(hide_password=True)
-    except Exception:  # not a URL SQLAlchemy knows: fall back to the pattern
-        pass
+    The password runs from the first ``:`` after the user to the last ``@`` before the
+    host, so one holding ``:`` or ``@`` is hidden whole (SQLAlchemy's ``make_url`` splits at
+    the first ``@`` and would show the rest).
+    """
     return mask_secrets(url)
 
 
 def mask_secrets(text: str) -> str:
     """``text`` with the password of every ``scheme://user:password@host`` in it masked."""
     return _URL_PASSWORD.sub(r"\g<head>***", text)
+
+
+class SecretFilter:
+    """A ``logging`` filter that masks database passwords in every record it passes."""
+
+    def filter(self, record: Any) -> bool:
+        message = record.getMessage()
+        masked = mask_secrets(message)
+        if masked != message:
+            record.msg, record.args = masked, None
+        return True

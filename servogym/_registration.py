@@ -15,10 +15,65 @@ NAMESPACE = "servogym"
 VERSION = 0
 
 ENTRY_POINTS = {
+    "Tune": "servogym._registration:make_tune_env",
+    "Schedule": "servogym._registration:make_schedule_env",
+}
+"""Env kind -> entry point (a function that checks the keywords against the id, then builds
+the env class of :data:`ENV_CLASSES`)."""
+
+ENV_CLASSES = {
     "Tune": "servogym.envs._tune:TuneEnv",
     "Schedule": "servogym.envs._schedule:ScheduleEnv",
 }
-"""Env kind -> entry point."""
+"""Env kind -> the env class its ids build."""
+
+_ID_PARTS: dict[str, tuple[str, str, str]] = {}
+"""Registered id -> (kind, chip family, plant family)."""
+
+
+def _build(kind: str, env_id: str | None, kwargs: dict):
+    """The env of ``kind``, after refusing keywords that contradict ``env_id``'s chip
+    family or plant family (``gym.make("servogym/Tune-PMD-Rotary-v0", plant="arm")``)."""
+    import importlib
+
+    if env_id is not None and env_id in _ID_PARTS:
+        _, family, plant = _ID_PARTS[env_id]
+        scenario = kwargs.get("scenario")
+        chip = getattr(scenario, "chip", None)
+        given = (
+            ("plant", kwargs.get("plant", plant), plant, "plant family"),
+            ("family", kwargs.get("family", family), family, "chip family"),
+            ("scenario.plant", getattr(scenario, "plant", plant), plant, "plant family"),
+            ("scenario's chip family", getattr(chip, "name", family), family, "chip family"),
+        )
+        for key, value, want, what in given:
+            if value == want:
+                continue
+            other = (
+                _id_for(kind, family, value) if what == "plant family"
+                else _id_for(kind, value, plant)
+            )  # fmt: skip
+            hint = f"; make {other} for that one" if other else ""
+            raise ValueError(
+                f"{key}={value!r} contradicts the env id {env_id}, whose {what} is {want!r}{hint}."
+            )
+    module, _, name = ENV_CLASSES[kind].partition(":")
+    return getattr(importlib.import_module(module), name)(**kwargs)
+
+
+def _id_for(kind: str, family: str, plant: str) -> str | None:
+    return next((i for i, parts in _ID_PARTS.items() if parts == (kind, family, plant)), None)
+
+
+def make_tune_env(env_id: str | None = None, **kwargs):
+    """Gymnasium's entry point of the ``Tune`` ids (see :func:`_build`)."""
+    return _build("Tune", env_id, kwargs)
+
+
+def make_schedule_env(env_id: str | None = None, **kwargs):
+    """Gymnasium's entry point of the ``Schedule`` ids (see :func:`_build`)."""
+    return _build("Schedule", env_id, kwargs)
+
 
 BUILTIN_FAMILIES: dict[str, tuple[str, str]] = {
     "pmd": ("PMD", "MC2100"),
@@ -49,11 +104,17 @@ def register(family: str, family_id: str, default_model: str, plant: str) -> lis
     for kind, entry_point in ENTRY_POINTS.items():
         eid = make_id(kind, family_id, plant)
         ids.append(eid)
+        _ID_PARTS[eid] = (kind, family, plant)
         if eid not in gym.registry:
             gym.register(
                 id=eid,
                 entry_point=entry_point,
-                kwargs={"chip_model": default_model, "plant": plant, "family": family},
+                kwargs={
+                    "env_id": eid,
+                    "chip_model": default_model,
+                    "plant": plant,
+                    "family": family,
+                },
                 disable_env_checker=False,
             )
     return ids

@@ -99,12 +99,15 @@ def setup_logging(verbose: int = 0) -> None:
 
     from rich.logging import RichHandler
 
+    from servogym._input import SecretFilter
+
     logger = logging.getLogger("servogym")
     for handler in list(logger.handlers):
         if isinstance(handler, RichHandler):
             logger.removeHandler(handler)
     handler = RichHandler(console=Console(stderr=True), show_path=False, show_time=verbose > 1)
     handler.setFormatter(logging.Formatter("%(message)s"))
+    handler.addFilter(SecretFilter())  # no database password in a log line
     logger.addHandler(handler)
     logger.setLevel([logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)])
 
@@ -253,9 +256,18 @@ def export(
     ] = False,
 ) -> None:
     """Export a parameter file in the form the hardware takes (written atomically)."""
+    from servogym._cli_common import check_choice
     from servogym._files import check_target, write_atomic
     from servogym.chips import ParameterError, family_of, read_params_file
+    from servogym.chips._family import get_chip
+    from servogym.chips._load import _check_fmt
 
+    check_choice("--chip", chip, get_chip)
+    if input_format is not None:
+        try:
+            _check_fmt(input_format)
+        except ParameterError as exc:
+            _fail(str(exc).replace("--format", "--input-format"))
     try:
         if out is not None:
             check_target(out, inputs=[params_file], force=force)
@@ -271,7 +283,8 @@ def export(
         if out is not None:
             write_atomic(out, text)
     except (ParameterError, ValueError, OSError) as exc:
-        _fail(str(exc))
+        message = str(exc).replace("name it with --format", "name it with --input-format")
+        fail(message, {"axis": "--axis", "motor": "--axis", "fmt": "--format"})
         return
     if as_json:
         doc = {"format": target, "chip_model": loaded.params.model, "chip_family": family.name,
@@ -357,10 +370,11 @@ def simulate(
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics as JSON.")] = False,
 ) -> None:
     """Simulate a chip axis on a plant along moves; print metrics, write a response plot."""
-    from servogym._cli_common import check_writable_folder
+    from servogym._cli_common import check_choice, check_writable_folder
     from servogym._files import write_atomic
     from servogym.chips import ParameterError, family_of, read_params_file
-    from servogym.plants import PlantParameterError
+    from servogym.chips._family import get_chip
+    from servogym.plants import PlantParameterError, get_plant
     from servogym.sim import REFERENCE_SUBSTEPS, Evaluator, MoveSpec, Scenario
     from servogym.sim._plot import plot_response
 
@@ -375,6 +389,8 @@ def simulate(
         )
     if params_format is not None and params is None:
         _fail(f"--format {params_format!r} names the format of --params; give --params too.")
+    check_choice("--chip", chip, get_chip)
+    check_choice("--plant", plant, get_plant)
     try:
         loaded = read_params_file(params, params_format, chip, what="--params") if params else None
         model = loaded.params.model if loaded else (chip if chip is not None else "MC2100")
@@ -409,7 +425,7 @@ def simulate(
         check_writable_folder("--out", out)  # before the work, not after it
         result = Evaluator(scenario).evaluate(chip_params, traces=True)
     except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
-        _fail(str(exc))
+        _fail(str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc))
         return
     summary = {"chip_model": model, "chip_family": family_of(chip_params).name, "plant": plant,
                **result.summary()}  # fmt: skip
@@ -506,11 +522,12 @@ def check(
     within the following-error and saturation limits and above the margin minima. Exit
     code 0 when it passes, 1 when it fails.
     """
-    from servogym._cli_common import check_number, check_writable_folder
+    from servogym._cli_common import check_choice, check_number, check_writable_folder
     from servogym._files import write_atomic
     from servogym.autotune._cli import check_table
     from servogym.chips import ParameterError, read_params_file
-    from servogym.plants import PlantParameterError
+    from servogym.chips._family import get_chip
+    from servogym.plants import PlantParameterError, get_plant
     from servogym.sim import Scenario
     from servogym.sim._check import CheckLimits, check_params
 
@@ -518,6 +535,8 @@ def check(
     check_number("--min-phase-margin", min_phase_margin, low=0, high=90)
     check_number("--max-following-error", max_following_error, low=0, low_open=True)
     check_number("--max-saturation", max_saturation, low=0, high=1)
+    check_choice("--plant", plant, get_plant)
+    check_choice("--chip", chip, get_chip)
     try:
         loaded = read_params_file(params_file, model=chip, what="PARAMS")
         if chip is not None and chip.upper() != loaded.params.model.upper():

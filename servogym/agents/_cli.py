@@ -40,7 +40,7 @@ def _check_env_id(env: str) -> None:
     if env not in ids:
         close = difflib.get_close_matches(env, ids, n=3)
         hint = f" Did you mean {', '.join(close)}?" if close else ""
-        _fail(f"unknown env id {env!r}; the servogym ids are {', '.join(ids)}.{hint}")
+        _fail(f"--env: unknown env id {env!r}; the servogym ids are {', '.join(ids)}.{hint}")
 
 
 def train_command(
@@ -65,30 +65,64 @@ def train_command(
     checkpoint_every: Annotated[int, typer.Option(min=1, help="Checkpoint interval (steps).")] = (
         10_000
     ),
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Continue the run in --out from its model.zip (saved at every checkpoint "
+            "and when stopped) up to --timesteps in all; give the run's own settings.",
+        ),
+    ] = False,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the saved model and run folder as JSON.")
     ] = False,
 ) -> None:
-    """Train an SB3 agent on a servogym env, with a progress bar, checkpoints and TensorBoard."""
-    from servogym._cli_common import check_count, check_number
-    from servogym.agents._train import ALGOS
+    """Train an SB3 agent on a servogym env, with a progress bar, checkpoints and TensorBoard.
+
+    Progress shows as a bar on a terminal and as a line on stderr every 30 s otherwise.
+    Every --checkpoint-every steps, and when stopped with Ctrl-C (SIGINT) or SIGTERM, the
+    model is saved as OUT/model.zip with OUT/config.json; --resume continues from it.
+    """
+    import sys
+
+    from servogym._cli_common import check_count, check_number, check_writable_folder
+    from servogym.agents._train import ALGOS, TrainingStopped, check_resume
 
     if algo.lower() not in ALGOS:
         _fail(f"--algo must be one of {', '.join(ALGOS)}; got --algo {algo!r}.")
     _check_env_id(env)
-    check_count("--seed", seed, low=0)
-    check_number("--minutes", minutes, low=0, low_open=True)
+    check_count("--seed", seed, low=0, high=2**32 - 1)
+    check_count("--timesteps", timesteps, high=MAX_TIMESTEPS)
+    check_count("--n-envs", n_envs, high=MAX_N_ENVS)
+    check_count("--checkpoint-every", checkpoint_every, high=MAX_TIMESTEPS)
+    check_number("--minutes", minutes, low=0, low_open=True, high=60 * 24 * 365)
     if out.exists() and not out.is_dir():
         _fail(f"--out {str(out)!r} is a file; give a folder for the run.")
     env_kw = _json_option(env_kwargs, "--env-kwargs")
     algo_kw = _json_option(algo_kwargs, "--algo-kwargs")
+    if resume:
+        try:
+            check_resume(out, env, algo, seed, n_envs, env_kw, algo_kw)
+        except ValueError as exc:
+            _fail(str(exc))
     _check_env_kwargs(env, env_kw)
-    _check_algo_kwargs(algo, algo_kw)
+    _check_algo_kwargs(algo, algo_kw, env, env_kw)
+    check_writable_folder("--out", out)
+    bar = not as_json and sys.stdout.isatty()
     try:
         path = _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes,
-                      checkpoint_every, as_json)  # fmt: skip
+                      checkpoint_every, bar, resume)  # fmt: skip
+    except TrainingStopped as stopped:
+        typer.echo(
+            f"stopped by {stopped.signal_name} at {stopped.timesteps} steps: saved "
+            f"{stopped.path} and its config.json; continue with the same command and --resume.",
+            err=True,
+        )
+        raise typer.Exit(code=130 if stopped.signal_name == "SIGINT" else 143) from None
     except (TypeError, ValueError) as exc:
-        _fail(f"--algo-kwargs {json.dumps(algo_kw)}: {exc}")
+        _fail(
+            str(exc) if str(exc).startswith("--") else f"--algo-kwargs {json.dumps(algo_kw)}: {exc}"
+        )
     except OSError as exc:
         _fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
     if as_json:
@@ -109,23 +143,128 @@ def _check_env_kwargs(env: str, kwargs: dict[str, Any]) -> None:
         _fail(f"--env-kwargs {json.dumps(kwargs)}: {str(exc).strip().splitlines()[0]}")
 
 
-def _check_algo_kwargs(algo: str, kwargs: dict[str, Any]) -> None:
-    """Refuse a keyword the SB3 algorithm does not take, before training starts."""
+MAX_EPISODES = 1_000_000
+"""Most ``evaluate --episodes``."""
+MAX_TIMESTEPS = 10**9
+"""Largest ``--timesteps`` (and ``--checkpoint-every``)."""
+MAX_N_ENVS = 256
+"""Most envs stepped in parallel."""
+
+_ALGO_NUMBERS = {
+    # keyword: (integer?, low, low open?, high)
+    "learning_rate": (False, 0.0, True, 1.0),
+    "gamma": (False, 0.0, True, 1.0),
+    "gae_lambda": (False, 0.0, False, 1.0),
+    "tau": (False, 0.0, True, 1.0),
+    "clip_range": (False, 0.0, True, 10.0),
+    "ent_coef": (False, 0.0, False, 10.0),
+    "vf_coef": (False, 0.0, False, 10.0),
+    "max_grad_norm": (False, 0.0, True, 1e6),
+    "batch_size": (True, 1, False, 10**7),
+    "n_steps": (True, 1, False, 10**7),
+    "n_epochs": (True, 1, False, 10**4),
+    "buffer_size": (True, 1, False, 10**8),
+    "learning_starts": (True, 0, False, 10**9),
+    "gradient_steps": (True, -1, False, 10**4),
+    "policy_delay": (True, 1, False, 10**4),
+}
+"""Ranges of the SB3 keywords servogym checks itself (SB3 asserts some, ignores others)."""
+
+
+def _check_algo_kwargs(
+    algo: str, kwargs: dict[str, Any], env: str | None = None, env_kw: dict | None = None
+) -> None:
+    """Refuse a keyword the SB3 algorithm does not take, a value outside its range, a device
+    this machine lacks, and anything else the algorithm refuses when it is built once here
+    (before any worker starts)."""
     import inspect
+    import math
 
     from servogym.agents._train import _algo_class
 
+    shown = f"--algo-kwargs {json.dumps(kwargs)}"
     taken = set(inspect.signature(_algo_class(algo).__init__).parameters) - {"self", "env"}
     unknown = [k for k in kwargs if k not in taken]
     if unknown:
         _fail(
             f"--algo-kwargs names {', '.join(map(repr, unknown))}, which {algo.upper()} does not "
-            f"take; got --algo-kwargs {json.dumps(kwargs)}."
+            f"take; got {shown}."
         )
+    for key, value in kwargs.items():
+        if key not in _ALGO_NUMBERS or (key == "gradient_steps" and value == -1):
+            continue
+        if key == "ent_coef" and isinstance(value, str) and value.startswith("auto"):
+            continue  # SAC's learned entropy coefficient ("auto", "auto_0.1")
+        integer, low, low_open, high = _ALGO_NUMBERS[key]
+        kind_ok = isinstance(value, int) if integer else isinstance(value, (int, float))
+        rule = f"{low} {'<' if low_open else '<='} {key} <= {high}"
+        if (
+            isinstance(value, bool)
+            or not kind_ok
+            or not math.isfinite(value)
+            or not ((value > low if low_open else value >= low) and value <= high)
+        ):
+            what = "an integer" if integer else "a number"
+            _fail(f"--algo-kwargs {key} must be {what} with {rule}; got {key}={value!r}.")
+    if algo.lower() == "ppo" and "batch_size" in kwargs and kwargs["batch_size"] < 2:
+        _fail(
+            f"--algo-kwargs batch_size must be >= 2 for PPO; got "
+            f"batch_size={kwargs['batch_size']!r}."
+        )
+    if "device" in kwargs:
+        _check_device(kwargs["device"])
+    if env is None:
+        return
+    import gymnasium as gym
+
+    kw = {k: v for k, v in kwargs.items() if k not in ("buffer_size", "learning_starts")}
+    e = gym.make(env, **(env_kw or {}))
+    try:
+        extra = {"buffer_size": 1} if algo.lower() in ("sac", "td3") else {}
+        _algo_class(algo)("MlpPolicy", e, **{"device": "cpu", **kw, **extra})
+    except (AssertionError, TypeError, ValueError, KeyError, RuntimeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        _fail(f"{shown}: {algo.upper()} refuses them: {first[:200]}")
+    finally:
+        e.close()
+
+
+def _check_device(device: Any) -> None:
+    """Refuse a torch device this machine does not have (SB3 would fall back to the CPU
+    without a word)."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        if device == "auto":
+            return
+        _fail(
+            f"--algo-kwargs device must be 'cpu', 'auto' or a torch device; got "
+            f"device={device!r} ({exc})."
+        )
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        _fail(
+            f"--algo-kwargs device={device!r}: no CUDA device is available here "
+            f"(torch.cuda.is_available() is False); use 'cpu', or 'auto' for the best there is."
+        )
+    if dev.type == "mps" and not torch.backends.mps.is_available():
+        _fail(f"--algo-kwargs device={device!r}: no MPS device is available here; use 'cpu'.")
 
 
 def _train(
-    env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes, checkpoint_every, as_json
+    env,
+    algo,
+    timesteps,
+    seed,
+    out,
+    n_envs,
+    env_kw,
+    algo_kw,
+    minutes,
+    checkpoint_every,
+    bar,
+    resume=False,
 ):
     from servogym.agents._train import train
 
@@ -140,7 +279,9 @@ def _train(
         algo_kwargs=algo_kw,
         wall_time_s=None if minutes is None else minutes * 60.0,
         checkpoint_every=checkpoint_every,
-        progress_bar=not as_json,
+        progress_bar=bar,
+        log_progress=not bar,
+        resume=resume,
     )
 
 
@@ -179,7 +320,8 @@ def evaluate_command(
         summarize,
     )
 
-    check_count("--seed", seed, low=0)
+    check_count("--seed", seed, low=0, high=2**32 - 1)
+    check_count("--episodes", episodes, high=MAX_EPISODES)
     kwargs: dict[str, Any] = {}
     if model is not None:
         if not model.exists():

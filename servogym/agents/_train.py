@@ -85,9 +85,19 @@ class _EnvFactory:
         self.residual = None if residual is None else dict(residual)
 
     def __call__(self) -> gym.Env:
+        import multiprocessing
+        import signal
+
         from stable_baselines3.common.monitor import Monitor
 
         import servogym.envs  # noqa: F401  (registers the ids in a fresh process)
+
+        if multiprocessing.parent_process() is not None:
+            # An env worker: Ctrl-C or SIGTERM to the group is the trainer's to handle (it
+            # saves the model, then closes the workers); a worker killed first would leave
+            # the trainer without its envs.
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
         env = Monitor(gym.make(self.env_id, **self.env_kwargs))
         if self.residual is not None:
@@ -123,6 +133,118 @@ class _WallClock:
         return WallClockCallback()
 
 
+class TrainingStopped(Exception):
+    """Training was stopped by SIGINT or SIGTERM; the model and its config were saved.
+
+    Attributes:
+        path: The saved ``model.zip``.
+        signal_name: ``"SIGINT"`` or ``"SIGTERM"``.
+        timesteps: Env steps trained so far (what ``--resume`` continues from).
+    """
+
+    def __init__(self, path: Path, signal_name: str, timesteps: int) -> None:
+        super().__init__(f"stopped by {signal_name} at {timesteps} steps; saved {path}")
+        self.path, self.signal_name, self.timesteps = path, signal_name, timesteps
+
+
+class _Stop:
+    """SIGINT / SIGTERM handlers that ask the training loop to stop (restored on exit)."""
+
+    def __init__(self) -> None:
+        self.signal_name: str | None = None
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> _Stop:
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, _frame: Any) -> None:
+        import signal
+
+        if self.signal_name is not None:  # a second Ctrl-C: stop now, without saving
+            raise KeyboardInterrupt
+        self.signal_name = signal.Signals(signum).name
+
+    def __exit__(self, *exc: Any) -> None:
+        import signal
+
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+def _save_run(model: Any, out: Path, config: dict[str, Any], name: str = "model.zip") -> Path:
+    """``model`` as ``out/name`` and its ``config.json``, each written atomically."""
+    import io
+
+    from servogym._files import write_atomic
+
+    buf = io.BytesIO()
+    model.save(buf)
+    path = write_atomic(out / name, buf.getvalue())
+    config["trained_timesteps"] = int(model.num_timesteps)
+    write_atomic(out / "config.json", json.dumps(config, indent=2, default=str) + "\n")
+    return path
+
+
+def _callbacks(
+    out: Path, algo: str, config: dict[str, Any], n_envs: int, every: int, total: int,
+    stop: _Stop, wall_time_s: float | None, log_progress: bool, t0: float,
+):  # fmt: skip
+    """Checkpoints (each also model.zip and config.json), the stop flag, the wall clock
+    and, when no progress bar shows, a progress line on stderr."""
+    import sys
+
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from servogym._files import write_atomic
+
+    class _Run(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.next_save = (config.get("trained_timesteps", 0) // every + 1) * every
+            self.next_log = 0.0
+            self.start_steps: int | None = None
+            self.ended = False
+
+        def _on_step(self) -> bool:
+            steps = int(self.model.num_timesteps)
+            if self.start_steps is None:
+                self.start_steps = steps - n_envs
+            if steps >= self.next_save:
+                import io
+
+                buf = io.BytesIO()
+                self.model.save(buf)
+                (out / "checkpoints").mkdir(exist_ok=True)
+                write_atomic(out / "checkpoints" / f"{algo}_{steps}_steps.zip", buf.getvalue())
+                write_atomic(out / "model.zip", buf.getvalue())
+                config["trained_timesteps"] = steps
+                write_atomic(out / "config.json", json.dumps(config, indent=2, default=str) + "\n")
+                self.next_save = (steps // every + 1) * every
+            now = time.monotonic()
+            if log_progress and (now >= self.next_log or (steps >= total and not self.ended)):
+                self.ended = steps >= total
+                rate = (steps - self.start_steps) / max(now - t0, 1e-9)
+                left = max(total - steps, 0) / rate if rate > 0 else float("inf")
+                print(
+                    f"train: {steps}/{total} steps ({100 * steps / total:.0f} %), "
+                    f"{rate:.1f} steps/s, about {left / 60:.1f} min left",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                self.next_log = now + 30.0
+            if stop.signal_name is not None:
+                return False
+            return wall_time_s is None or now - t0 < wall_time_s
+
+    return _Run()
+
+
 def train(
     env_id: str,
     algo: str = "sac",
@@ -141,6 +263,8 @@ def train(
     subprocess: bool = True,
     torch_threads: int = 1,
     verbose: int = 0,
+    resume: bool = False,
+    log_progress: bool = False,
 ) -> Path:
     """Train an SB3 agent and save it; returns the path of the final model (``.zip``).
 
@@ -161,14 +285,25 @@ def train(
         residual: ``{"center": [...], "scale": s}``: the agent acts around a fixed set
             (:class:`ResidualAction`); saved in ``config.json`` so :func:`load_policy` maps
             the model's actions back.
-        checkpoint_every: Save a checkpoint every this many env steps.
+        checkpoint_every: Every this many env steps, save a checkpoint in
+            ``checkpoints/`` and the model as ``model.zip`` with its ``config.json``.
         wall_time_s: Stop early after this much wall time (s).
         progress_bar: Show SB3's progress bar.
+        resume: Continue the run in ``out`` from its ``model.zip`` (the last checkpoint,
+            or the model saved when it was stopped) up to ``timesteps`` in all; the
+            settings must be the run's own. Weights and optimiser state are restored (never
+            unpickled); an off-policy replay buffer starts empty.
+        log_progress: Print a progress line on stderr every 30 s (for logs and pipes,
+            where no progress bar shows).
+
+    Raises:
+        TrainingStopped: on SIGINT or SIGTERM, after ``model.zip`` and ``config.json``
+            were saved (a second signal stops at once).
         subprocess: ``SubprocVecEnv`` (one process per env) instead of ``DummyVecEnv``.
         torch_threads: Torch CPU threads of the learner.
         verbose: SB3 verbosity.
     """
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+    from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     if isinstance(timesteps, bool) or not isinstance(timesteps, int) or timesteps < 1:
@@ -182,10 +317,18 @@ def train(
             "center": [float(c) for c in residual["center"]],
             "scale": float(residual["scale"]),
         }
+    trained = 0
+    if resume:
+        trained = check_resume(out, env_id, algo, seed, n_envs, env_kwargs, algo_kwargs)
+        if trained >= timesteps:
+            raise ValueError(
+                f"--resume: the run in {str(out)!r} has trained {trained} steps already, "
+                f"--timesteps {timesteps}; give --timesteps > {trained} to train further."
+            )
     factories = [make_env(env_id, env_kwargs, reward_scale, residual) for _ in range(n_envs)]
     vec_cls = SubprocVecEnv if subprocess and n_envs > 1 else DummyVecEnv
     venv = vec_cls(factories)
-    venv.seed(seed)
+    venv.seed(seed + trained)
     tb = None
     try:
         import tensorboard  # noqa: F401
@@ -207,30 +350,88 @@ def train(
         "algo_kwargs": dict(algo_kwargs or {}),
         "reward_scale": reward_scale,
         "residual": residual,
+        "trained_timesteps": trained,
     }
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    from servogym._files import write_atomic
+
+    write_atomic(out / "config.json", json.dumps(config, indent=2, default=str) + "\n")
     kwargs = json.loads(json.dumps(dict(algo_kwargs or {})))  # SB3 edits policy_kwargs
     model = cls("MlpPolicy", venv, seed=seed, tensorboard_log=tb, verbose=verbose, **kwargs)
-    callbacks = CallbackList(
-        [
-            CheckpointCallback(
-                max(checkpoint_every // n_envs, 1), str(out / "checkpoints"), name_prefix=algo
-            ),
-            _WallClock.make(wall_time_s),
-        ]
-    )
+    if resume:  # weights and optimiser state only: nothing is unpickled
+        model.set_parameters(str(out / "model.zip"), exact_match=True, device=model.device)
+        model.num_timesteps = trained
     t0 = time.monotonic()
-    try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="rich is experimental")
-            model.learn(timesteps, callback=callbacks, progress_bar=progress_bar)
-    finally:
-        venv.close()
-    path = out / "model.zip"
-    model.save(path)
-    config.update(trained_timesteps=int(model.num_timesteps), wall_time_s=time.monotonic() - t0)
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    with _Stop() as stop:
+        callbacks = CallbackList(
+            [_callbacks(out, algo, config, n_envs, checkpoint_every, timesteps, stop,
+                        wall_time_s, log_progress, t0)]
+        )  # fmt: skip
+        try:
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message="rich is experimental")
+                model.learn(
+                    timesteps - trained,
+                    callback=callbacks,
+                    progress_bar=progress_bar,
+                    reset_num_timesteps=not resume,
+                )
+        except (EOFError, BrokenPipeError, ConnectionResetError):
+            if stop.signal_name is None:  # the env workers died on their own
+                raise
+        finally:
+            venv.close()
+        config["wall_time_s"] = config.get("wall_time_s", 0.0) + time.monotonic() - t0
+        if stop.signal_name is not None:
+            config["stopped_by"] = stop.signal_name
+        path = _save_run(model, out, config)
+        if stop.signal_name is not None:
+            raise TrainingStopped(path, stop.signal_name, int(model.num_timesteps))
     return path
+
+
+def check_resume(
+    out: Path,
+    env_id: str,
+    algo: str,
+    seed: int,
+    n_envs: int,
+    env_kwargs: Mapping[str, Any] | None,
+    algo_kwargs: Mapping[str, Any] | None,
+) -> int:
+    """Steps the run in ``out`` has trained, after checking that it is a run of the same
+    settings (a :class:`ValueError` naming the option that differs otherwise)."""
+    cfg, model = out / "config.json", out / "model.zip"
+    if not cfg.is_file() or not model.is_file():
+        missing = "config.json" if not cfg.is_file() else "model.zip"
+        raise ValueError(
+            f"--resume: --out {str(out)!r} holds no {missing}, so there is no run to continue "
+            f"(a run saves model.zip at every checkpoint and when stopped). Run without "
+            f"--resume to start one."
+        )
+    config = read_config(cfg, "--resume")
+    given = {
+        "--env": env_id,
+        "--algo": algo.lower(),
+        "--seed": seed,
+        "--n-envs": n_envs,
+        "--env-kwargs": dict(env_kwargs or {}),
+        "--algo-kwargs": dict(algo_kwargs or {}),
+    }
+    stored = {"--env": config["env_id"], "--algo": config["algo"], "--seed": config.get("seed"),
+              "--n-envs": config.get("n_envs"), "--env-kwargs": config["env_kwargs"],
+              "--algo-kwargs": config["algo_kwargs"]}  # fmt: skip
+    for option, value in given.items():
+        if stored[option] != value:
+            raise ValueError(
+                f"--resume: {option} {json.dumps(value)} differs from the run's own "
+                f"{json.dumps(stored[option])} ({str(cfg)!r}); repeat the run's settings."
+            )
+    trained = config.get("trained_timesteps", 0)
+    if isinstance(trained, bool) or not isinstance(trained, int) or trained < 0:
+        raise ValueError(
+            f"--resume: {str(cfg)!r} has trained_timesteps={trained!r}; expected an integer >= 0."
+        )
+    return trained
 
 
 class UnsafeModelError(ValueError):

@@ -158,34 +158,66 @@ def tune_command(
 
     from rich.console import Console
 
-    from servogym._cli_common import check_count, check_number, fail
+    from servogym._cli_common import check_choice, check_count, check_number, fail
     from servogym._files import MANIFEST, PENDING, FileSafetyError
+    from servogym._input import mask_url
     from servogym.autotune._job import TuneConfig, parse_fix, parse_plant_params, tune
     from servogym.autotune._session import TuneError
-    from servogym.autotune._tuners import tuner_names
+    from servogym.autotune._tuners import get_tuner, tuner_names
     from servogym.calibrate import plant_values
+    from servogym.chips._family import get_chip
     from servogym.chips._space import ParameterError
     from servogym.plants import get_plant, parse_plant_ranges
 
     console = Console()
-    check_count("--budget", budget)
-    check_count("--workers", workers)
-    check_count("--robust", robust)
-    check_count("--batch-size", batch_size)
-    check_count("--seed", seed, low=0)
+    check_count("--budget", budget, high=MAX_BUDGET)
+    check_count("--workers", workers, high=MAX_WORKERS)
+    check_count("--robust", robust, high=MAX_ROBUST)
+    check_count("--batch-size", batch_size, high=MAX_BUDGET)
+    check_count("--seed", seed, low=0, high=MAX_SEED)
     check_number("--max-following-error", max_following_error, low=0, low_open=True)
     check_number("--max-saturation", max_saturation, low=0, high=1)
     check_number("--min-gain-margin", min_gain_margin, low=0, high=60)
     check_number("--min-phase-margin", min_phase_margin, low=0, high=90)
-    check_count("--check-candidates", check_candidates)
+    check_count("--check-candidates", check_candidates, high=MAX_CHECK_CANDIDATES)
+    check_choice("--chip", chip, get_chip)
+    check_choice("--plant", plant, get_plant)
+    check_choice("--tuner", tuner, get_tuner)
+    if robust_mode not in ("mean", "worst"):
+        fail(f"--robust-mode must be 'mean' or 'worst'; got --robust-mode {robust_mode!r}.")
+    if study_name is not None and (not study_name.strip() or study_name != study_name.strip()):
+        fail(
+            f"--study-name must be a non-empty name without leading or trailing spaces; got "
+            f"--study-name {study_name!r}."
+        )
+    if storage is not None and not storage.strip():
+        fail(f"--storage must be a journal file path or a database URL; got --storage {storage!r}.")
     if out.exists() and not out.is_dir():
         fail(f"--out {str(out)!r} is a file; give a folder for the run's outputs.")
-    previous = [n for n in (MANIFEST, PENDING, "study.db", "study.journal") if (out / n).exists()]
+    # An empty study.journal (a tune stopped while it started) holds no study: the folder
+    # counts as new, and the run opens that journal and starts in it.
+    previous = [
+        n for n in (MANIFEST, PENDING, "study.db", "study.journal")
+        if (out / n).exists() and not (n == "study.journal" and _empty_file(out / n))
+    ]  # fmt: skip
     if previous and not resume:
         fail(
             f"--out {str(out)!r} already holds a tune run ({', '.join(previous)}); pass "
             f"--resume to continue its study, or choose another --out."
         )
+    if resume:
+        own = storage is None or ("://" not in storage)
+        where = out / "study.journal" if storage is None else Path(storage).expanduser()
+        has_study = (storage is None and (out / "study.db").exists()) or (
+            where.is_file() and where.stat().st_size > 0
+        )
+        name = study_name or f"servogym-{out.resolve().name}"
+        if own and not has_study:
+            shown = "--out " + repr(str(out)) if storage is None else "--storage " + repr(storage)
+            fail(
+                f"--resume: nothing to resume: {shown} holds no study {name!r} ({str(where)!r} "
+                f"is missing or empty). Run the same command without --resume to start it."
+            )
 
     try:
         if tuner not in tuner_names():
@@ -234,13 +266,16 @@ def tune_command(
         if storage is not None:
             from servogym.autotune._session import open_storage
 
-            try:
-                open_storage(storage)
-            except TuneError as exc:
-                detail = str(exc).split("': ", 1)[-1]
-                fail(f"--storage {storage!r} cannot be opened as a study: {detail}")
+            if "://" not in storage and not Path(storage).expanduser().exists():
+                _check_new_journal(storage)  # validated without creating the file
+            else:
+                try:
+                    open_storage(storage)
+                except TuneError as exc:
+                    detail = str(exc).split("': ", 1)[-1]
+                    fail(f"--storage {mask_url(storage)!r} cannot be opened as a study: {detail}")
     except (TuneError, ParameterError, KeyError, ValueError) as exc:
-        fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
+        fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc), TUNE_OPTIONS)
         return
 
     from rich.progress import (
@@ -288,7 +323,7 @@ def tune_command(
         message = str(exc.args[0]) if isinstance(exc, KeyError) else str(exc)
         if message.startswith("cannot open the study storage"):  # the default storage
             message = f"--storage (default: the run folder's study): {message}"
-        fail(message)
+        fail(message, TUNE_OPTIONS)
         return
     except OSError as exc:
         fail(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}.")
@@ -296,9 +331,9 @@ def tune_command(
     except Exception as exc:  # storage drivers: SQLAlchemy and Optuna errors
         if type(exc).__module__.split(".")[0] not in ("sqlalchemy", "optuna", "sqlite3"):
             raise
-        where = storage or str(out)
+        where = mask_url(storage) if storage else str(out)
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        fail(f"--storage {where!r} cannot be used as an Optuna study: {first[:200]}")
+        fail(f"--storage {where!r} cannot be used as an Optuna study: {mask_url(first)[:200]}")
     report = summary.get("check")
     failed = report is not None and not report["passed"] and summary["hardware_files_withheld"]
     if as_json:
@@ -338,6 +373,56 @@ def tune_command(
         )
         if summary["hardware_files_withheld"]:
             raise typer.Exit(code=1)
+
+
+TUNE_OPTIONS = {
+    "budget": "--budget",
+    "n_workers": "--workers",
+    "workers": "--workers",
+    "batch_size": "--batch-size",
+    "robust": "--robust",
+    "robust_mode": "--robust-mode",
+    "max_following_error": "--max-following-error",
+    "max_saturation": "--max-saturation",
+    "min_gain_margin_db": "--min-gain-margin",
+    "min_phase_margin_deg": "--min-phase-margin",
+    "check_candidates": "--check-candidates",
+    "study_name": "--study-name",
+    "seed": "--seed",
+}
+"""Library argument -> the tune option that sets it (for error messages)."""
+
+MAX_BUDGET = 100_000
+"""Largest ``--budget`` (and ``--batch-size``): evaluations of one run."""
+MAX_WORKERS = 1024
+"""Most evaluation threads."""
+MAX_ROBUST = 1000
+"""Most plant instances per trial (``--robust``)."""
+MAX_SEED = 2**32 - 1
+"""Largest ``--seed`` (the samplers' seeds are 32-bit)."""
+MAX_CHECK_CANDIDATES = 1000
+"""Most trials the check may try."""
+
+
+def _empty_file(path: Path) -> bool:
+    try:
+        return path.is_file() and path.stat().st_size == 0
+    except OSError:
+        return False
+
+
+def _check_new_journal(storage: str) -> None:
+    """Refuse a journal path that cannot be created, without creating it."""
+    from servogym._cli_common import fail
+    from servogym.autotune._session import TuneError, open_storage
+
+    path = Path(storage).expanduser()
+    if not storage.strip() or ":" in path.name or not path.parent.is_dir():
+        try:
+            open_storage(storage)  # raises the one-line reason
+        except TuneError as exc:
+            detail = str(exc).split("': ", 1)[-1]
+            fail(f"--storage {storage!r} cannot be opened as a study: {detail}")
 
 
 def check_table(report: dict):

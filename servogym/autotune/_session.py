@@ -319,6 +319,12 @@ def open_storage(
         return url  # a storage object already
     if "://" not in url:
         path = Path(url).expanduser()
+        if not url.strip() or ":" in path.name:
+            raise TuneError(
+                f"cannot open the study storage {url!r}: it is neither a journal file path "
+                "(a file name without ':', e.g. runs/x/study.journal) nor a database URL "
+                "(scheme://..., e.g. sqlite:///runs/x/study.db)."
+            )
         if not path.parent.is_dir():
             raise TuneError(
                 f"cannot open the study storage {url!r}: the folder {str(path.parent)!r} "
@@ -403,15 +409,22 @@ def _open_rdb(url: str, heartbeat_interval: int, grace_period: int) -> Any:
                 )
             break
         except ImportError as exc:
+            hint = (
+                "pip install 'servogym[postgres]'"
+                if scheme.startswith("postgres")
+                else f"install the driver {scheme}:// names (e.g. pip install pymysql for "
+                "mysql+pymysql://)"
+            )
             raise TuneError(
                 f"cannot open the study storage {shown!r}: its database driver is "
-                f"missing ({exc}); for postgresql:// pip install 'servogym[postgres]'."
+                f"missing ({_redact(str(exc))}); {hint}."
             ) from None
         except Exception as exc:  # SQLAlchemy's errors: bad URL, unreachable server, races
             if _is_race(exc) and attempt < 7:
                 time.sleep(0.1 * (attempt + 1))  # another process is creating the schema
                 continue
-            raise TuneError(f"cannot open the study storage {shown!r}: {_one_line(exc)}") from None
+            detail = _redact(_one_line(exc))
+            raise TuneError(f"cannot open the study storage {shown!r}: {detail}") from None
     if scheme == "sqlite":
         from sqlalchemy import event
 
@@ -492,13 +505,10 @@ def _one_line(exc: BaseException | None) -> str:
 
 
 def _redact(url: str) -> str:
-    """The URL without its password."""
-    head, sep, rest = url.partition("://")
-    if sep and "@" in rest:
-        cred, at, host = rest.rpartition("@")
-        user = cred.split(":", 1)[0]
-        return f"{head}://{user}{':***' if ':' in cred else ''}{at}{host}"
-    return url
+    """The URL without its password (SQLAlchemy's rendering, ``user:***@host``)."""
+    from servogym._input import mask_url
+
+    return mask_url(url)
 
 
 def per_trial_sampler(make_sampler: Callable[[int], Any], seed: int) -> Any:
@@ -632,7 +642,8 @@ class Session:
         )
         self.study, created = self._open_study(config, resume, load_if_exists)
         if not created:
-            old = self._stored_config()
+            # a joining worker waits for the creator; a resume finds it stored already
+            old = self._stored_config(30.0 if load_if_exists else 2.0)
             # A resume or a joining worker repeats the problem and the tuner; batch size and
             # warm start are the stored ones unless given again (then they must agree).
             if warm_start is None:
@@ -740,17 +751,24 @@ class Session:
                 return study, True
         return optuna.load_study(study_name=name, storage=self._storage), False
 
-    def _stored_config(self) -> dict[str, Any]:
-        deadline = time.monotonic() + 30
+    def _stored_config(self, wait_s: float = 30.0) -> dict[str, Any]:
+        deadline = time.monotonic() + wait_s
         while True:
             old = self.study.user_attrs.get(CONFIG_KEY)
             if old is not None:
                 return old
             if time.monotonic() > deadline:
+                n = len(self.study.get_trials(deepcopy=False))
+                where = self._where()
+                remedy = "choose another --study-name"
+                if self.storage_url and "://" not in self.storage_url and n == 0:
+                    remedy = (
+                        f"if a servogym tune was stopped while it started (the study holds no "
+                        f"trial), remove {where!r} and run the command again without --resume"
+                    )
                 raise TuneError(
-                    f"the study {self.study_name!r} in {self._where()} has no servogym "
-                    "configuration, so servogym tune did not create it; choose another "
-                    "--study-name."
+                    f"the study {self.study_name!r} in {where} has no servogym configuration "
+                    f"({n} trials), so servogym tune did not finish creating it; {remedy}."
                 )
             time.sleep(POLL_S)  # its creator is about to store it
 

@@ -70,7 +70,18 @@ def _resolve(
     if params is None:
         names = [s.name for s in space.tunable() if s.name not in fixed_values]
     else:
+        if isinstance(params, str) or not all(isinstance(n, str) for n in params):
+            raise ValueError(
+                f"params must be a sequence of register names, e.g. ('kp', 'kd'); got "
+                f"params={params!r}."
+            )
         names = list(params)
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(
+                f"params names {', '.join(map(repr, twice))} twice; each register is one "
+                f"action entry; got params={tuple(params)!r}."
+            )
         for name in names:
             space[name]  # unknown names raise with close matches
             if name in fixed_values:

@@ -138,6 +138,11 @@ class TuneEnv(gym.Env):
             action_type, self.chip, self.scenario.chip_model, params, fixed
         )
         self.action_space = self.actions.space
+        if not isinstance(privileged, (bool, np.bool_)):
+            raise ValueError(
+                f"privileged must be True or False; got privileged={privileged!r} of type "
+                f"{type(privileged).__name__}."
+            )
         self.privileged = bool(privileged)
         n = len(MOVE_FEATURES)
         if self.privileged:

@@ -87,7 +87,7 @@ def benchmark_command(
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from servogym._cli_common import check_count, check_writable_folder, fail
+    from servogym._cli_common import check_choice, check_count, check_writable_folder, fail
     from servogym.autotune.bench._reference import (
         load_best_known,
         refine_from_runs,
@@ -108,8 +108,8 @@ def benchmark_command(
     from servogym.autotune.bench._suite import get_suite
 
     console = Console(stderr=as_json)
-    check_count("--seeds", seeds)
-    check_count("--workers", workers)
+    check_count("--seeds", seeds, high=1000)
+    check_count("--workers", workers, high=1024)
     tuner_list = [t.strip() for t in tuners.split(",")]
     if not [t for t in tuner_list if t]:
         fail(f"--tuners must name at least one tuner; got --tuners {tuners!r}.")
@@ -120,11 +120,15 @@ def benchmark_command(
         fail(f"--tuners names {', '.join(twice)} twice; got --tuners {tuners!r}.")
     if out.exists() and not out.is_dir():
         fail(f"--out {str(out)!r} is a file; give a folder for the benchmark.")
-    try:
-        s = get_suite(suite)
-        ids = s.ids(split)
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc)) from None
+    from servogym.autotune._tuners import get_tuner
+
+    check_choice("--suite", suite, get_suite)
+    s = get_suite(suite)
+    if split not in ("train", "heldout", "all"):
+        fail(f"--split must be one of train, heldout, all; got --split {split!r}.")
+    ids = s.ids(split)
+    for t in tuner_list:
+        check_choice("--tuners", t, get_tuner)
     if instance:
         for i in instance:
             try:
@@ -157,10 +161,6 @@ def benchmark_command(
         budgets = _ints(budget, "--budget")
         names = set(tuner_list)
         try:
-            from servogym.autotune._tuners import get_tuner
-
-            for t in tuner_list:
-                get_tuner(t)  # raises with the list and close matches
             limits = dict(TunerLimit.parse(x) for x in limit or [])
         except ValueError as exc:
             raise typer.BadParameter(str(exc)) from None
@@ -170,10 +170,8 @@ def benchmark_command(
                 fail(f"--limit {x!r} names {name!r}, which is not in --tuners {tuners!r}.")
             if sum(y.partition(":")[0].strip() == name for y in limit or []) > 1:
                 fail(f"--limit names {name!r} twice; got --limit {x!r}.")
-    check_writable_folder("--out", out)
+    recs: list = []
     if reference and seed_from is not None:
-        t0 = time.perf_counter()
-        path = out / f"{suite}.json"
         try:
             recs = [r for r in load_results(seed_from) if r["instance"] in set(ids)]
         except ValueError as exc:
@@ -183,6 +181,10 @@ def benchmark_command(
                 f"--seed-from {str(seed_from)!r} holds no finished benchmark job of the "
                 f"{len(ids)} instance(s) asked (runs.jsonl or jobs/); give a benchmark's --out."
             )
+    check_writable_folder("--out", out)
+    if reference and seed_from is not None:
+        t0 = time.perf_counter()
+        path = out / f"{suite}.json"
         if dry_run:
             console.print(f"stage 2 would refine {len(ids)} instances from {len(recs)} runs "
                           f"-> {path} (dry run: nothing started)")  # fmt: skip

@@ -257,7 +257,7 @@ def _check_axis(chip: PMDChipModel, axis: Any, where: str = "") -> int:
     if not 1 <= axis <= chip.n_axes:
         raise ParameterError(
             f"{at}axis must satisfy 1 <= axis <= {chip.n_axes} ({chip.name} has "
-            f"{chip.n_axes} axis{'es' if chip.n_axes > 1 else ''}); got axis={int(axis)}."
+            f"{chip.n_axes} {'axes' if chip.n_axes > 1 else 'axis'}); got axis={int(axis)}."
         )
     return int(axis)
 
