@@ -95,23 +95,15 @@ def read_plant_file(
         PlantFileError: one line naming the file and what is wrong.
     """
     from servogym._files import json_checksum
-    from servogym.chips._paramfile import strict_json
+    from servogym._input import InputError, read_json
     from servogym.plants import PlantParameterError, get_plant
 
     path = Path(path)
     name = f"{what} {str(path)!r}"
-    if path.is_dir():
-        raise PlantFileError(f"{name} is a folder; give a plant.json file.")
     try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise PlantFileError(f"{name} does not exist.") from None
-    except OSError as exc:
-        raise PlantFileError(f"{name} cannot be read: {exc.strerror}.") from None
-    try:
-        doc = strict_json(raw)
-    except ValueError as exc:
-        raise PlantFileError(f"{name} is not valid JSON: {exc}") from None
+        doc = read_json(path, what)
+    except InputError as exc:
+        raise PlantFileError(str(exc)) from None
     if not isinstance(doc, dict) or doc.get("format") != PLANT_FILE_FORMAT:
         got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
         raise PlantFileError(

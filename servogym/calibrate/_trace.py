@@ -41,6 +41,9 @@ MIN_TICKS = 200
 """Fewest samples a trace needs (a move and its settling; fewer cannot separate inertia
 from friction)."""
 
+MAX_TRACE_BYTES = 256 * 1024 * 1024
+"""Largest trace file read (about 6 million CSV samples)."""
+
 PERIOD_TOLERANCE = 0.01
 """Largest relative difference between a trace's sample spacing and the chip's period."""
 
@@ -220,18 +223,12 @@ def read_trace(
         raise TraceError(
             f"--format must be one of {', '.join(TRACE_FORMATS)}; got --format {fmt!r}.{hint}"
         )
-    if path.is_dir():
-        raise TraceError(f"{what} {str(path)!r} is a folder; give a trace file.")
+    from servogym._input import InputError, read_text
+
     try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except FileNotFoundError:
-        raise TraceError(f"{what} {str(path)!r} does not exist.") from None
-    except UnicodeDecodeError as exc:
-        raise TraceError(
-            f"{what} {str(path)!r} is not a text file (byte {exc.start} is not UTF-8)."
-        ) from None
-    except OSError as exc:
-        raise TraceError(f"{what} {str(path)!r} cannot be read: {exc.strerror}.") from None
+        text = read_text(path, what, max_bytes=MAX_TRACE_BYTES).removeprefix("\ufeff")
+    except InputError as exc:
+        raise TraceError(str(exc)) from None
     try:
         fmt = detect_trace_format(text) if fmt is None else fmt
         if fmt == "pmac-gather":

@@ -52,7 +52,7 @@ def test_an_edited_file_is_refused(tmp_path):
 @pytest.mark.parametrize(
     ("text", "match"),
     [
-        ("{", "not valid JSON"),
+        ("{", "must be JSON; invalid JSON"),
         ('{"format": "servogym-params"}', "is not a plant file"),
         ('{"format": "servogym-plant", "version": 7}', "version must be 1"),
     ],
