@@ -215,10 +215,10 @@ def calibrate_command(
         raise typer.Exit(code=1)
 
 
-def _key_values(items: list[str] | None) -> dict[str, float]:
+def _key_values(items: list[str] | None) -> dict[str, int | float]:
     from servogym._cli_common import fail
 
-    out: dict[str, float] = {}
+    out: dict[str, int | float] = {}
     for item in items or []:
         key, sep, value = item.partition("=")
         key = key.strip()
@@ -227,9 +227,12 @@ def _key_values(items: list[str] | None) -> dict[str, float]:
         if key in out:
             fail(f"--fix names {key} twice; got --fix {item!r}.")
         try:
-            number = float(value)
+            number: float = int(value)  # an integer stays one (encoder_counts_per_rev)
         except ValueError:
-            number = float("nan")
+            try:
+                number = float(value)
+            except ValueError:
+                number = float("nan")
         if number != number or number in (float("inf"), float("-inf")):
             fail(f"--fix {key} must be a finite number; got {key}={value!r}.")
         out[key] = number

@@ -297,7 +297,7 @@ def calibrate(
     """
     from scipy.optimize import least_squares
 
-    from servogym.plants import get_plant
+    from servogym.plants import PlantParameterError, get_plant
 
     started = time.perf_counter()
     chip = family_of(params)
@@ -305,11 +305,16 @@ def calibrate(
     check_trace(trace, chip.sample_time_s(params), params.model)
     family = get_plant(plant)
     fix = dict(fix or {})
-    for name in fix:
-        family.param(name)  # unknown names: close matches
+    try:
+        base = family.validate(fix)  # unknown names get close matches
+    except PlantParameterError as exc:
+        raise PlantParameterError(f"--fix: {exc}") from None
     names = list(fit) if fit else [n for n in family.randomised() if n not in fix]
     for name in names:
-        p = family.param(name)
+        try:
+            p = family.param(name)
+        except PlantParameterError as exc:
+            raise PlantParameterError(f"--fit: {exc}") from None
         if name in fix:
             raise FitError(f"{name} is both fitted (--fit) and fixed (--fix); choose one.")
         if name in NOT_FITTED or p.type_name == "int":
@@ -324,7 +329,6 @@ def calibrate(
             )
     if not names:
         raise FitError("nothing to fit: every parameter is fixed; leave one out of --fix.")
-    base = family.validate(fix)
     start = np.array([float(base[n]) for n in names])
     lows = np.array([family.param(n).low for n in names])
     highs = np.array([family.param(n).high for n in names])

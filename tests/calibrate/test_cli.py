@@ -165,3 +165,26 @@ def test_tune_takes_the_plant_file(calibrated, tmp_path):
     ])  # fmt: skip
     assert result.exit_code == 2
     assert "is a 'rotary' plant, but the command runs --plant arm" in result.output
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--fix", "coulomb=0.1"], "--fix: plant family 'rotary' has no parameter 'coulomb'"),
+        (["--fix", "coulomb_friction_nm=5"], "--fix: coulomb_friction_nm must satisfy"),
+        (["--fix", "coulomb_friction_nm=abc"], "must be a finite number"),
+        (["--fit", "load"], "--fit: plant family 'rotary' has no parameter 'load'"),
+        (["--latency", "later"], "--latency must be one of axis_slot"),
+        (["--max-error", "0"], "--max-error must satisfy 0 < --max-error"),
+        (["--format", "xml"], "--format must be one of csv, pmac-gather"),
+        (["--chip", "TurboPMAC2"], "is a pmac model, but the file is a pmd file"),
+        (["--fix", "encoder_counts_per_rev=4000"], "4096 <= encoder_counts_per_rev"),
+    ],
+)
+def test_bad_options_exit_2_with_one_line(files, tmp_path, extra, message):
+    result = runner.invoke(app, [
+        "calibrate", str(files / "trace.csv"), "--chip", "MC2100", "--plant", "rotary",
+        "--params", str(files / "params.json"), "--out", str(tmp_path / "out"), *extra,
+    ])  # fmt: skip
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert result.exit_code == 2 and len(lines) == 1 and message in lines[0], result.output
