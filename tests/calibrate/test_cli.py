@@ -188,3 +188,18 @@ def test_bad_options_exit_2_with_one_line(files, tmp_path, extra, message):
     ])  # fmt: skip
     lines = [ln for ln in result.output.splitlines() if ln.strip()]
     assert result.exit_code == 2 and len(lines) == 1 and message in lines[0], result.output
+
+
+@pytest.mark.slow
+def test_check_runs_on_the_plant_file(calibrated, files, tmp_path):
+    _, out = calibrated
+    result = runner.invoke(app, [
+        "check", str(files / "params.json"), "--plant", "rotary", "--plant-file",
+        str(out / "plant.json"), "--plant-param", "coulomb_friction_nm=0.02",
+        "--out", str(tmp_path / "chk"), "--json",
+    ])  # fmt: skip
+    assert result.exit_code in (0, 1), result.output
+    doc = json.loads((tmp_path / "chk" / "check.json").read_text())
+    pf = read_plant_file(out / "plant.json")
+    assert doc["plant_values"]["load_inertia_kgm2"] == pf.values["load_inertia_kgm2"]
+    assert doc["plant_values"]["coulomb_friction_nm"] == 0.02
