@@ -72,6 +72,18 @@ class FileSafetyError(ParameterError):
     """A file cannot be written or read safely (the message says which and why)."""
 
 
+class FileWriteError(OSError):
+    """The OS refused a write; the message names the file asked for, never the temporary
+    file the write went through (``Permission denied (writing 'out/best_params.c')``)."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+def _write_error(exc: OSError, target: Path) -> FileWriteError:
+    return FileWriteError(exc.errno, f"{exc.strerror or exc} (writing {str(target)!r})")
+
+
 # --------------------------------------------------------------------------------------
 # Atomic writes
 # --------------------------------------------------------------------------------------
@@ -127,6 +139,15 @@ def _fsync_dir(folder: Path) -> None:
 
 def _write_temp(folder: Path, name: str, data: bytes, token: str | None = None) -> Path:
     """``data`` in a hidden temporary file next to ``name``, flushed to disk."""
+    try:
+        return _write_temp_raw(folder, name, data, token)
+    except FileWriteError:
+        raise
+    except OSError as exc:
+        raise _write_error(exc, folder / name) from None
+
+
+def _write_temp_raw(folder: Path, name: str, data: bytes, token: str | None) -> Path:
     if token is None:
         fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
     else:
@@ -167,9 +188,11 @@ def write_atomic(path: str | Path, data: str | bytes) -> Path:
     tmp = _write_temp(path.parent, path.name, _bytes(data))
     try:
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise _write_error(exc, path) from None
         raise
     _fsync_dir(path.parent)
     return path

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
@@ -153,14 +154,29 @@ def _plant_values(plant_file: Path | None, plant: str, items: list[str] | None) 
 
 @app.command()
 def chips(
+    model_filter: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--model", help="List only this chip model (repeatable; any case, e.g. mc2100)."
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,
 ) -> None:
     """List chip models with every parameter's legal range and default."""
+    from servogym._cli_common import check_choice
     from servogym.chips import families
+    from servogym.chips._family import get_chip
 
+    wanted = None
+    if model_filter:
+        for name in model_filter:
+            check_choice("--model", name, get_chip)
+        wanted = {get_chip(name)[1] for name in model_filter}
     out = []
     for family in families().values():
         for model in family.models.values():
+            if wanted is not None and model.name not in wanted:
+                continue
             out.append(
                 {
                     "family": family.name,
@@ -212,7 +228,8 @@ def plants(
             table.add_column(col, no_wrap=col == "parameter")
         for p in fam["params"]:
             table.add_row(
-                p["name"], p["unit"], f"{p['nominal']:g}", f"{p['low']:g} .. {p['high']:g}",
+                p["name"], p["unit"], _number(p["nominal"]),
+                f"{_number(p['low'])} .. {_number(p['high'])}",
                 p["distribution"], "yes" if p["randomised"] else "no",
             )  # fmt: skip
         console.print(table)
@@ -423,7 +440,8 @@ def simulate(
         )  # fmt: skip
         chip_params = loaded.params if loaded else scenario.default_params()
         check_writable_folder("--out", out)  # before the work, not after it
-        result = Evaluator(scenario).evaluate(chip_params, traces=True)
+        with _working(f"simulating {model} on {plant} ({len(scenario.moves)} moves)", as_json):
+            result = Evaluator(scenario).evaluate(chip_params, traces=True)
     except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
         _fail(str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc))
         return
@@ -554,7 +572,12 @@ def check(
         )  # fmt: skip
         folder = out or params_file.with_name(params_file.stem + "_check")
         check_writable_folder("--out", folder)  # before the check, not after it
-        report = check_params(loaded.params, scenario, limits, bode_path=folder / "bode.png")
+        with _working(
+            f"checking {loaded.params.model} on {plant}: the stress set on the reference "
+            f"integration and the loop margins (tens of seconds)",
+            as_json,
+        ):
+            report = check_params(loaded.params, scenario, limits, bode_path=folder / "bode.png")
     except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
         _fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
         return
@@ -570,6 +593,29 @@ def check(
         console.print(f"wrote {folder / 'bode.png'} and {folder / 'check.json'}", highlight=False)
     if not report.passed:
         raise typer.Exit(code=1)
+
+
+@contextlib.contextmanager
+def _working(text: str, quiet: bool = False):
+    """Show that a long step runs: a spinner on a terminal, one line on stderr otherwise
+    (nothing with ``--json``)."""
+    if quiet:
+        yield
+        return
+    err = Console(stderr=True)
+    if err.is_terminal:
+        with err.status(text + " ..."):
+            yield
+    else:
+        typer.echo(f"{text} ...", err=True)
+        yield
+
+
+def _number(x: float) -> str:
+    """A plant value as a person writes it: ``1048576``, ``0.0002``, ``1.5e-07``."""
+    if float(x).is_integer() and abs(x) < 1e15:
+        return str(int(x))
+    return f"{x:.6g}"
 
 
 def _fmt(value: object) -> str:

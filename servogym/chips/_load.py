@@ -190,4 +190,10 @@ def read_params_file(
         check_against_manifest(path)
         return load_params_file(text, fmt, model, axis)
     except ParameterError as exc:
-        raise type(exc)(f"{what} {str(path)!r}: {exc}") from None
+        message = str(exc)
+        if model is not None and (what.startswith("--") or what.isupper()):  # a command's --chip
+            message = re.sub(
+                r"\bor model=None( to use the header)?", "or leave --chip out", message
+            )
+            message = re.sub(r"(?<![\w-])model=", "--chip ", message)
+        raise type(exc)(f"{what} {str(path)!r}: {message}") from None

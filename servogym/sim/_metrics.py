@@ -47,7 +47,9 @@ class EpisodeMetrics:
             motor limit (a limit of 0 counts every tick).
         chatter: Mean magnitude of the tick-to-tick change of the motor command, as a
             fraction of full scale per tick.
-        settled: Whether the error ended inside the band.
+        settled: Whether ``|e|`` stayed inside the band over the whole steady-state
+            window (the last 10 % of the ticks, after the move): a response that only
+            passes through the band at its last tick has not settled.
         diverged: Whether the episode ended early (error bound, travel bound, the chip's
             motion error, or a non-finite simulation state).
         divergence_tick: Tick at which it ended early, or -1.
@@ -134,8 +136,12 @@ def compute_metrics(commanded, actual, command, n, move_end, target, direction, 
         e = commanded[k] - actual[k]
         sse += abs(((e + 2**31) & 0xFFFFFFFF) - 2**31)
     end = max(move_end, 0)
-    settled = last_out < n - 1 and n - 1 > move_end
-    if settled:
+    ends_inside = last_out < n - 1 and n - 1 > move_end
+    # settled: inside the band over the whole steady-state window (the last tenth, the
+    # window steady_state_error is taken over), which starts after the move; a response
+    # that only passes through the band at the last tick has not settled.
+    settled = last_out < n - tail and n - tail > move_end
+    if ends_inside:
         settle = (max(last_out + 1, end) - end) * dt
     else:
         settle = max(n - end, 0) * dt
