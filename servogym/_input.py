@@ -192,9 +192,12 @@ def _json_type(value: Any) -> str:
             float: "number", type(None): "null"}.get(type(value), type(value).__name__)  # fmt: skip
 
 
-def read_json(path: str | Path, what: str, *, expect: type | None = dict) -> Any:
+def read_json(
+    path: str | Path, what: str, *, expect: type | None = dict, max_bytes: int = MAX_FILE_BYTES
+) -> Any:
     """A JSON file through :func:`read_text` and :func:`parse_json`."""
-    return parse_json(read_text(path, what), f"{what} {str(path)!r}", expect=expect)
+    text = read_text(path, what, max_bytes=max_bytes)
+    return parse_json(text, f"{what} {str(path)!r}", expect=expect)
 
 
 # --------------------------------------------------------------------------------------

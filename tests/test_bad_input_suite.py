@@ -199,6 +199,9 @@ CONTRADICTIONS: list[tuple[list[str], str, str]] = [
     ([*TUNE, "--resume", "--storage", "{o}/s.journal"], "--resume", "s.journal"),
     ([*_drop(TUNE, "--budget"), "--budget", "1000000000"], "--budget", "1000000000"),
     ([*TUNE, "--seed", "4294967296"], "--seed", "4294967296"),
+    ([*TUNE, "--storage", "{d}/fifo"], "--storage", "FIFO"),
+    ([*TUNE, "--storage", "/dev/zero"], "--storage", "/dev/zero"),
+    ([*TUNE, "--storage", "{d}/deep.json"], "--storage", "deep.json"),
     ([*TUNE, "--storage", f"postgresql://u:{SECRET}@127.0.0.1:1/db"], "--storage", "u:***@"),
     ([*TUNE, "--storage", f"mysql+pymysql://u:{SECRET}@127.0.0.1:1/db"], "--storage", "u:***@"),
     ([*TUNE, "--storage", f"postgresql://u:a:{SECRET}@x@127.0.0.1:1/db"], "--storage", "u:***@"),
@@ -215,7 +218,9 @@ CONTRADICTIONS: list[tuple[list[str], str, str]] = [
     ([*BASE["benchmark"][:-2], "--reference", "--seed-from", "{o}/nope"], "--seed-from", "nope"),
     ([*BASE["benchmark"], "--seed-from", "{d}"], "--seed-from", "--reference"),
     ([*BASE["benchmark"][:-2], "--reference", "--seed-from", "{d}"], "--seed-from",
-     "no finished"),
+     "holds no servobench-v0.json"),
+    (["benchmark", "--out", "{d}", "--dry-run", "--reference", "--seed-from", "{d}/folder"],
+     "--seed-from", "no finished"),
     ([*BASE["benchmark"], "--reference"], "--tuners", "--reference"),
     (["benchmark", "--out", "{d}/p.json/sub", "--dry-run", "--tuners", "tpe"], "--out", "p.json"),
     ([*BASE["train"], "--algo-kwargs", '{"batch_size": 0}'], "batch_size", "0"),
@@ -267,6 +272,7 @@ def files(tmp_path_factory) -> Path:
     parker = families()["parker6k"]
     (d / "p6250.prg").write_text(parker.export(parker.make_params("6250"), "6250"))
     (d / "folder").mkdir()
+    (d / "servobench-v0.json").write_text('{"instances": {}}')
     os.mkfifo(d / "fifo")
     (d / "empty.json").write_text("")
     (d / "binary.bin").write_bytes(b"\x00\xff\xfe\x80" * 10)

@@ -164,3 +164,23 @@ def test_plants_prints_integers_as_integers_and_chips_filters_models():
     assert [e["model"] for e in json.loads(result.output)] == ["MC2100"]
     six = json.loads(CliRunner().invoke(app, ["chips", "--model", "6250", "--json"]).output)
     assert six[0]["export_formats"] == ["json", "6250"]  # what `export -f` takes for it
+
+
+def test_a_study_left_without_its_configuration_names_the_file_to_remove(tmp_path):
+    import optuna
+
+    from servogym.autotune._session import open_storage
+
+    out = tmp_path / "run"
+    out.mkdir()
+    journal = out / "study.journal"
+    # killed after creating the study and before storing servogym's configuration
+    optuna.create_study(storage=open_storage(str(journal)), study_name="servogym-run")
+    result = CliRunner().invoke(app, [*TUNE, "--out", str(out), "--resume"])
+    assert result.exit_code == 2, result.output
+    line = " ".join(result.output.split())
+    assert f"remove '{journal}'" in line and "without --resume" in line, line
+    journal.unlink()
+    (out / "study.journal.flock").unlink(missing_ok=True)
+    result = CliRunner().invoke(app, [*TUNE, "--out", str(out)])
+    assert result.exit_code == 0, result.output

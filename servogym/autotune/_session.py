@@ -258,6 +258,9 @@ def _journal_backend(path: Path) -> Any:
                 except json.JSONDecodeError as err:
                     last_error = err
                     del offsets[number + 1]
+                except RecursionError:  # a damaged line nested too deep to parse
+                    last_error = ValueError(f"line {number + 1} is nested too deep")
+                    del offsets[number + 1]
 
     # Not Optuna's ".lock" name: optuna-dashboard opening the file uses a symlink lock there.
     return _Backend(str(path), _FlockLock(str(path) + ".flock"))
@@ -359,18 +362,38 @@ def open_storage(
 def _check_journal_file(path: Path, url: str) -> None:
     """Refuse an existing file that is not an Optuna journal before anything is appended to
     it: its first line must be a whole JSON object with an ``op_code``."""
-    try:
-        with open(path, "rb") as f:
-            first = f.readline(1 << 20)
+    import os
+    import stat
+
+    from servogym._input import json_depth_error
+
+    try:  # O_NONBLOCK: a FIFO given as --storage must not wait for a writer
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
         return
     except OSError as exc:
         raise TuneError(f"cannot open the study storage {url!r}: {exc.strerror or exc}.") from None
-    if not first:
-        return  # empty: a new journal
     try:
-        ok = first.endswith(b"\n") and "op_code" in json.loads(first)
-    except (ValueError, TypeError):
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise TuneError(
+                f"cannot open the study storage {url!r}: it is not a regular file (a device, "
+                "FIFO or socket); give a journal file path."
+            )
+        head = os.read(fd, 1 << 20)
+    except OSError as exc:
+        raise TuneError(f"cannot open the study storage {url!r}: {exc.strerror or exc}.") from None
+    finally:
+        os.close(fd)
+    if not head:
+        return  # empty: a new journal
+    first = head.split(b"\n", 1)[0] + (b"\n" if b"\n" in head else b"")
+    try:
+        ok = (
+            first.endswith(b"\n")
+            and json_depth_error(first) is None
+            and "op_code" in json.loads(first)
+        )
+    except (ValueError, TypeError, RecursionError):
         ok = False
     if not ok:
         raise TuneError(

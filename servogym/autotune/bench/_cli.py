@@ -171,6 +171,11 @@ def benchmark_command(
             if sum(y.partition(":")[0].strip() == name for y in limit or []) > 1:
                 fail(f"--limit names {name!r} twice; got --limit {x!r}.")
     recs: list = []
+    if reference and seed_from is not None and not (out / f"{suite}.json").is_file():
+        fail(
+            f"--seed-from refines the reference search in --out {str(out)!r}, which holds no "
+            f"{suite}.json; run `servogym benchmark --reference --out {out}` first."
+        )
     if reference and seed_from is not None:
         try:
             recs = [r for r in load_results(seed_from) if r["instance"] in set(ids)]
@@ -189,7 +194,10 @@ def benchmark_command(
             console.print(f"stage 2 would refine {len(ids)} instances from {len(recs)} runs "
                           f"-> {path} (dry run: nothing started)")  # fmt: skip
             return
-        doc = refine_from_runs(suite, recs, path, workers=workers, run_label=str(seed_from))
+        try:
+            doc = refine_from_runs(suite, recs, path, workers=workers, run_label=str(seed_from))
+        except ValueError as exc:
+            fail(f"--out {str(out)!r}: {exc}")
         st2 = doc["method"]["stage2"]
         n_ref, n_imp = len(st2["instances_refined"]), len(st2["instances_improved"])
         dt = time.perf_counter() - t0
@@ -211,7 +219,10 @@ def benchmark_command(
                                   f"{rec['found_by']}, {rec['wall_s']:.0f} s)")  # fmt: skip
                 bar.advance(task)
 
-            run_reference(suite, path, split=split, workers=workers, on_done=done)
+            try:
+                run_reference(suite, path, split=split, workers=workers, on_done=done)
+            except ValueError as exc:
+                fail(f"--out {str(out)!r}: {exc}")
         console.print(f"done in {time.perf_counter() - t0:.0f} s")
         return
     instances = [s.instance(i) for i in ids]

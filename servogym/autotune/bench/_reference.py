@@ -206,8 +206,11 @@ def run_reference(
     out_path = Path(out_path)
     data: dict[str, Any] = {}
     if out_path.exists():
-        data = json.loads(out_path.read_text())
-        if data.get("method", {}).get("config") != dataclasses.asdict(config) | {
+        from servogym._input import read_json
+
+        data = read_json(out_path, "the reference data file", max_bytes=1 << 28)
+        method = data.get("method")
+        if not isinstance(method, dict) or method.get("config") != dataclasses.asdict(config) | {
             "cmaes_seeds": list(config.cmaes_seeds)
         }:
             data = {}
@@ -306,9 +309,15 @@ def refine_from_runs(
     import concurrent.futures as cf
     import multiprocessing
 
+    from servogym._input import read_json
     from servogym.autotune.bench._suite import get_suite
 
-    doc = json.loads(Path(out_path).read_text())
+    doc = read_json(out_path, "the reference data file", max_bytes=1 << 28)
+    if not isinstance(doc.get("instances"), dict):
+        raise ValueError(
+            f"{str(out_path)!r} holds no reference search (no 'instances' object); run "
+            f"`servogym benchmark --reference` into that --out first."
+        )
     recs = doc["instances"]
     seeds: dict[str, tuple[float, dict[str, int], str]] = {}
     s = get_suite(suite)
