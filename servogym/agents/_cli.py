@@ -326,6 +326,8 @@ def evaluate_command(
     if model is not None:
         if not model.exists():
             _fail(f"--model {str(model)!r} does not exist.")
+        if not model.is_file():  # a folder, FIFO or device: never opened (a FIFO would wait)
+            _fail(f"--model {str(model)!r} is not a regular file; give a run's model.zip.")
         cfg = model.parent / "config.json"
         if cfg.exists():
             from servogym.agents._train import read_config
