@@ -199,6 +199,13 @@ def calibrate_command(
             f"open-loop replay (recorded command into the plant): RMS error "
             f"{cal.open_loop_rms_error_counts:.3g} counts", highlight=False,
         )  # fmt: skip
+        if not cal.latency_decided:
+            console.print(
+                f"[yellow]warning:[/yellow] the trace hardly tells the latency "
+                f"{cal.latency} from {' = '.join(cal.latencies[1].choices)} (cost ratio "
+                f"{cal.latency_margin:.3g}); record a faster move, or hold it with --latency",
+                highlight=False,
+            )
         for name in cal.poorly_determined:
             console.print(f"[yellow]warning:[/yellow] the trace determines {name} poorly "
                           f"(uncertainty above 50 %); hold it with --fix if it is known",

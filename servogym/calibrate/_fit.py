@@ -12,7 +12,11 @@ ranges) on three stacked residuals, each divided by its signal's size:
 
 Parameters are fitted in ``log(value / start)`` (all are positive, their ranges span
 decades); finite differences take 10 % steps, large enough to see through the encoder's and
-the filter's integer steps. The latency with the lowest cost wins. Each value's uncertainty
+the filter's integer steps. The cost is rugged (counts, Coulomb friction's stick), so each
+fit starts from the best Sobol points, restarts at other shares of Coulomb in the total
+friction, and polishes one parameter at a time (docs/calibrate.md, "The fit"). The latency
+with the lowest cost wins; it is "decided" when the runner-up costs at least
+:data:`LATENCY_DECIDED` times as much. Each value's uncertainty
 is one standard deviation from the Jacobian at the optimum, ``s^2 (J^T J)^-1`` with ``s^2``
 the residual variance, inflated by ``(1 + rho) / (1 - rho)`` for the residuals' lag-1
 autocorrelation ``rho``; it covers the noise, not a model that is wrong in the way a real
@@ -45,6 +49,21 @@ N_STARTS = 32
 FRICTION_SHARES = (0.05, 0.2, 0.4, 0.6, 0.8, 0.95)
 """Shares of Coulomb friction in the total friction at the moves' top speed that a fit is
 also started from (the best of them, when it is nearly as good as the fit's optimum)."""
+
+POLISH_FACTORS = (0.25, 0.5, 0.8, 1.25, 2.0, 4.0)
+"""Factors each fitted parameter is tried at, alone, after a fit (then refitted from the
+best of them when it lowers the cost by 10 %)."""
+
+POLISH_ROUNDS = 2
+"""Most rounds of those trials."""
+
+REFIT_RATIO = 3.0
+"""Latency candidates whose brief fit costs at most this many times the best are fitted in
+full (from their own best starts)."""
+
+LATENCY_DECIDED = 1.5
+"""The latency is reported as decided when the runner-up's cost is at least this many
+times the winner's."""
 
 N_LOCAL = 3
 """Fits run from the best of those points (and the nominal start); the best fit wins."""
@@ -163,6 +182,20 @@ class Calibration:
     n_evaluations: int
     max_error_ratio: float = MAX_ERROR_RATIO
 
+    @property
+    def latency_margin(self) -> float:
+        """The runner-up latency's cost over the winner's (``inf`` with one candidate)."""
+        if len(self.latencies) < 2:
+            return float("inf")
+        best = self.latencies[0].cost
+        return self.latencies[1].cost / best if best > 0 else float("inf")
+
+    @property
+    def latency_decided(self) -> bool:
+        """Whether the trace tells the latency from the runner-up (margin at least
+        :data:`LATENCY_DECIDED`)."""
+        return self.latency_margin >= LATENCY_DECIDED
+
     def verdict(self) -> str:
         """One line: good or poor, and why."""
         if not self.poor:
@@ -198,6 +231,8 @@ class Calibration:
             "latency": self.latency,
             "latency_choices": list(self.latency_choices),
             "latency_s": self.latency_s,
+            "latency_decided": self.latency_decided,
+            "latency_margin": None if self.latency_margin == float("inf") else self.latency_margin,
             "latencies": [
                 dataclasses.asdict(x) | {"choices": list(x.choices)} for x in self.latencies
             ],
@@ -414,7 +449,7 @@ def calibrate(
     # the best of a scrambled Sobol set over the parameters' sampling ranges (the stick
     # position at the end of a move jumps with the friction: local minima), then the plant
     # at the family's default latency (or the first candidate) to convergence, every other
-    # latency from there briefly, the best of them to convergence
+    # latency from there briefly, the close ones again in full
     default = asm.loop_latency if latency is None else latency
     order = sorted(cands, key=lambda c: default not in c[0])
     # viscous and Coulomb friction trade off along the moves' speed: a fit can settle on
@@ -451,6 +486,23 @@ def calibrate(
             if costs[i] < 2.0 * best.cost:
                 other = solve(shares[i], choice, max_nfev)
                 best = other if other.cost < best.cost else best
+        # a trust region on a rugged cost stalls where one parameter alone could still go
+        # far: try each parameter at a few factors, refit from the best if it is better
+        for _ in range(POLISH_ROUNDS):
+            trials = []
+            for i in range(len(names)):
+                for factor in POLISH_FACTORS:
+                    y = best.x.copy()
+                    y[i] = np.clip(y[i] + np.log(factor), lb[i], ub[i])
+                    trials.append(y)
+            costs = [0.5 * cost(y) for y in trials]
+            i = int(np.argmin(costs))
+            if not costs[i] < 0.9 * best.cost:
+                break
+            other = solve(trials[i], choice, max_nfev)
+            if not other.cost < best.cost:
+                break
+            best = other
         return best
 
     first = fit_at(order[0][0][0])
@@ -458,13 +510,17 @@ def calibrate(
     for choices, lat in order[1:]:
         sol = solve(first.x, choices[0], SCREEN_NFEV)
         results.append((sol.cost, choices, lat, sol))
-    results.sort(key=lambda r: r[0])
-    if results[0][3] is not first:
-        # fitted again from the best starts at this latency: a fit from another latency's
-        # optimum can stall on the count steps (the vertical axis does)
-        _, choices, lat, screened = results[0]
+    # every latency whose brief fit comes within REFIT_RATIO of the best is fitted again
+    # from its own best starts: a fit from another latency's optimum can stall on the
+    # count steps (the vertical axis does), and close candidates need a fair comparison
+    best_cost = min(r[0] for r in results)
+    for i, (c_cost, choices, lat, screened) in enumerate(results):
+        if screened is first or c_cost > REFIT_RATIO * best_cost:
+            continue
         sol = fit_at(choices[0])
-        results[0] = (sol.cost, choices, lat, sol) if sol.cost <= screened.cost else results[0]
+        if sol.cost < c_cost:
+            results[i] = (sol.cost, choices, lat, sol)
+    results.sort(key=lambda r: r[0])
     _, choices, lat, sol = results[0]
 
     rp.set_plant(values_of(sol.x))

@@ -31,6 +31,7 @@ def test_the_latency_setting_comes_back(rotary_fit):
     assert rotary_fit.latency == HIDDEN_LATENCY
     assert rotary_fit.latency_choices == (HIDDEN_LATENCY,)
     assert rotary_fit.latencies[0].choices == (HIDDEN_LATENCY,)
+    assert rotary_fit.latency_decided and rotary_fit.to_dict()["latency_decided"] is True
     # every other latency replays clearly worse
     assert all(
         x.rms_error_counts > 5 * rotary_fit.rms_error_counts for x in rotary_fit.latencies[1:]
