@@ -158,7 +158,8 @@ def row(r: dict) -> str:
     verdict = "pass, written" if r["exit_code"] == 0 else "exit 1"
     if r["exit_code"] == 0:
         verdict += ", re-check " + ("pass" if r.get("recheck_exit_code") == 0 else "FAIL")
-    why = "; ".join(r["failures"][:2]) if r["exit_code"] else ""
+    first = sorted(r["failures"], key=lambda f: ": command limit: " not in f)  # the cause first
+    why = "; ".join(first[:2]) if r["exit_code"] else ""
     design = "-" if r["design"] is None else f"{r['design']:.3g}"
     return (
         f"| {r['chip']} | {r['plant']} {vals} | {r['default_cost']:.3g} | {design} | "

@@ -445,11 +445,15 @@ def check_table(report: dict):
         f"(minima {limits['min_gain_margin_db']:g} dB, {limits['min_phase_margin_deg']:g} deg; "
         f"saturation at most {100 * limits['max_saturation']:g} % of ticks)"
     )
-    table = Table(title=title, title_justify="left")
-    for col in ("case (RK4 reference)", "loop latency", "cost", "diverged",
-                "max following error (counts)", "saturation", "stable", "gain margin",
-                "phase margin", "verdict"):  # fmt: skip
-        table.add_column(col, justify="left" if col.startswith("case") else "right")
+    caption = (
+        "error: largest following error / its limit (counts); at limit: ticks at the motor "
+        "limit; GM, PM: gain and phase margin at the worst holding point"
+    )
+    table = Table(title=title, title_justify="left", caption=caption, caption_justify="left")
+    table.add_column("case (RK4 reference)", no_wrap=True)
+    for col in ("latency", "cost", "diverged", "error", "at limit", "stable", "GM", "PM",
+                "verdict"):  # fmt: skip
+        table.add_column(col, justify="right", no_wrap=col in ("latency", "error"))
     for c in report["cases"]:
         m = c.get("margins") or {}
         fe = _fmt(c["max_following_error"])

@@ -298,8 +298,8 @@ def _run_case(
     failures = case_failures(result, op, limits, family.joint_unit)
     need = required_peak_effort(family, evaluator.plant.values, sc.moves)
     share = float(params.motor_limit) / FULL_SCALE
-    if share < need.fraction:
-        failures.append(command_limit_failure(case.name, share, need))
+    if share < need.fraction:  # the cause of what else fails: named first
+        failures.insert(0, command_limit_failure(case.name, share, need))
     return dataclasses.replace(result, failures=tuple(failures)), op
 
 

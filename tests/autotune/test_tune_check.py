@@ -57,6 +57,7 @@ def test_a_passing_check_is_in_the_provenance_and_the_table(tmp_path):
     check = summary["check"]
     assert r.exit_code == (0 if check["passed"] else 1), r.output
     assert "case (RK4 reference)" in r.output and "latency same_tick" in r.output
+    assert "GM, PM: gain and phase margin" in r.output.replace("\n", " ")
     assert "gain margin" in r.output
     doc = json.loads((tmp_path / "best_params.json").read_text())
     assert doc["notes"]["check"] == json.loads(json.dumps(check))
