@@ -195,7 +195,7 @@ def test_the_cli_runs_a_classical_tuner_and_prints_the_table(app, tmp_path):
         (["--fix", "kp"], "--fix takes NAME=VALUE"),
         (["--fix", "kp=40000"], "0 <= kp <= 32767"),
         (["--plant", "vertical-axis", "--plant-param", "payload=3"], "Did you mean payload_kg"),
-        (["--robust-mode", "median"], "robust_mode must be 'mean' or 'worst'"),
+        (["--robust-mode", "median"], "--robust-mode must be 'mean' or 'worst'"),
         (["--chip", "MC9999"], "unknown chip model 'MC9999'"),
     ],
 )
