@@ -15,8 +15,8 @@ decades); finite differences take 10 % steps, large enough to see through the en
 the filter's integer steps. The cost is rugged (counts, Coulomb friction's stick), so each
 fit starts from the best Sobol points, restarts at other shares of Coulomb in the total
 friction, and polishes one parameter at a time (docs/calibrate.md, "The fit"). The latency
-with the lowest cost wins; it is "decided" when the runner-up costs at least
-:data:`LATENCY_DECIDED` times as much. Each value's uncertainty
+whose fitted closed-loop replay has the lowest RMS position error wins; it is "decided" when
+the runner-up's is at least :data:`LATENCY_DECIDED` times as large. Each value's uncertainty
 is one standard deviation from the Jacobian at the optimum, ``s^2 (J^T J)^-1`` with ``s^2``
 the residual variance, inflated by ``(1 + rho) / (1 - rho)`` for the residuals' lag-1
 autocorrelation ``rho``; it covers the noise, not a model that is wrong in the way a real
@@ -57,13 +57,13 @@ best of them when it lowers the cost by 10 %)."""
 POLISH_ROUNDS = 2
 """Most rounds of those trials."""
 
-REFIT_RATIO = 3.0
+REFIT_RATIO = 10.0
 """Latency candidates whose brief fit costs at most this many times the best are fitted in
 full (from their own best starts)."""
 
 LATENCY_DECIDED = 1.5
-"""The latency is reported as decided when the runner-up's cost is at least this many
-times the winner's."""
+"""The latency is reported as decided when the runner-up's replay RMS error is at least
+this many times the winner's."""
 
 N_LOCAL = 3
 """Fits run from the best of those points (and the nominal start); the best fit wins."""
@@ -184,11 +184,12 @@ class Calibration:
 
     @property
     def latency_margin(self) -> float:
-        """The runner-up latency's cost over the winner's (``inf`` with one candidate)."""
+        """The runner-up latency's replay RMS error over the winner's (``inf`` with one
+        candidate, or a winner that replays the trace exactly)."""
         if len(self.latencies) < 2:
             return float("inf")
-        best = self.latencies[0].cost
-        return self.latencies[1].cost / best if best > 0 else float("inf")
+        best = self.latencies[0].rms_error_counts
+        return self.latencies[1].rms_error_counts / best if best > 0 else float("inf")
 
     @property
     def latency_decided(self) -> bool:
@@ -521,18 +522,22 @@ def calibrate(
         if sol.cost < c_cost:
             results[i] = (sol.cost, choices, lat, sol)
     results.sort(key=lambda r: r[0])
-    _, choices, lat, sol = results[0]
+    # the latency whose fitted replay follows the recorded positions best wins: the
+    # command residual, in the cost, is rugged (a count's flip kicks the derivative term)
+    scored = []
+    for c_cost, c_choices, c_lat, c_sol in results:
+        rp.set_plant(values_of(c_sol.x))
+        c_rms = _rms(rp.closed_loop(c_choices[0]).actual - meas)
+        scored.append((c_rms, c_cost, c_choices, c_lat, c_sol))
+    scored.sort(key=lambda r: (r[0], r[1]))
+    latencies = [LatencyResult(ch, la, float(co), rm) for rm, co, ch, la, _ in scored]
+    _, _, choices, lat, sol = scored[0]
 
     rp.set_plant(values_of(sol.x))
     closed = rp.closed_loop(choices[0])
     rp.set_plant(values_of(sol.x))
     opened = rp.open_loop(choices[0])
     rms = _rms(closed.actual - meas)
-    latencies = []
-    for c_cost, c_choices, c_lat, c_sol in results:
-        rp.set_plant(values_of(c_sol.x))
-        c_rms = _rms(rp.closed_loop(c_choices[0]).actual - meas)
-        latencies.append(LatencyResult(c_choices, c_lat, float(c_cost), c_rms))
 
     jacobian = sol.jac
     m, k = jacobian.shape
