@@ -115,24 +115,6 @@ def set_torch_threads(n: int = 1) -> None:
     torch.set_num_threads(max(1, int(n)))
 
 
-class _WallClock:
-    """Stops training after ``seconds`` of wall time (``None``: never)."""
-
-    @staticmethod
-    def make(seconds: float | None):
-        from stable_baselines3.common.callbacks import BaseCallback
-
-        class WallClockCallback(BaseCallback):
-            def __init__(self) -> None:
-                super().__init__()
-                self.t0 = time.monotonic()
-
-            def _on_step(self) -> bool:
-                return seconds is None or time.monotonic() - self.t0 < seconds
-
-        return WallClockCallback()
-
-
 class TrainingStopped(Exception):
     """Training was stopped by SIGINT or SIGTERM; the model and its config were saved.
 

@@ -69,3 +69,20 @@ def test_sigterm_saves_the_model_and_resume_continues(tmp_path):
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert other.returncode == 2 and "--seed" in other.stderr, other.stderr
+
+
+def test_sigint_and_sigterm_ask_the_loop_to_stop_and_a_second_one_stops_at_once():
+    import os
+
+    from servogym.agents._train import _Stop
+
+    for sig, name in ((signal.SIGINT, "SIGINT"), (signal.SIGTERM, "SIGTERM")):
+        old = signal.getsignal(sig)
+        with _Stop() as stop:
+            os.kill(os.getpid(), sig)
+            time.sleep(0.05)
+            assert stop.signal_name == name  # training goes on to its next step, then saves
+            with pytest.raises(KeyboardInterrupt):
+                os.kill(os.getpid(), sig)
+                time.sleep(0.05)
+        assert signal.getsignal(sig) is old  # the handlers are restored
