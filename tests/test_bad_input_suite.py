@@ -197,6 +197,7 @@ CONTRADICTIONS: list[tuple[list[str], str, str]] = [
     ([*TUNE, "--storage", ""], "--storage", "''"),
     ([*TUNE, "--resume"], "--resume", "nothing to resume"),
     ([*TUNE, "--resume", "--storage", "{o}/s.journal"], "--resume", "s.journal"),
+    ([*TUNE, "--resume", "--storage", "sqlite:///{o}/s.db"], "--resume", "s.db"),
     ([*_drop(TUNE, "--budget"), "--budget", "1000000000"], "--budget", "1000000000"),
     ([*TUNE, "--seed", "4294967296"], "--seed", "4294967296"),
     ([*TUNE, "--storage", "{d}/fifo"], "--storage", "FIFO"),

@@ -184,3 +184,19 @@ def test_a_study_left_without_its_configuration_names_the_file_to_remove(tmp_pat
     (out / "study.journal.flock").unlink(missing_ok=True)
     result = CliRunner().invoke(app, [*TUNE, "--out", str(out)])
     assert result.exit_code == 0, result.output
+
+
+def test_export_says_axes_not_axises():
+    import tempfile
+    from pathlib import Path
+
+    from servogym.chips.pmd import PMDParams, to_json
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "p.json"
+        path.write_text(to_json(PMDParams(model="MC2100")))
+        result = CliRunner().invoke(app, ["export", str(path), "--axis", "9"])
+    assert result.exit_code == 2
+    assert "--axis must satisfy 1 <= --axis <= 4 (MC2100 has 4 axes); got --axis 9" in (
+        " ".join(result.output.split())
+    )

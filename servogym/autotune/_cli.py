@@ -206,8 +206,10 @@ def tune_command(
             f"--resume to continue its study, or choose another --out."
         )
     if resume:
-        own = storage is None or ("://" not in storage)
+        own = storage is None or "://" not in storage or storage.startswith("sqlite:///")
         where = out / "study.journal" if storage is None else Path(storage).expanduser()
+        if storage is not None and storage.startswith("sqlite:///"):  # no new database file
+            where = Path(storage[len("sqlite:///") :].split("?", 1)[0]).expanduser()
         has_study = (storage is None and (out / "study.db").exists()) or (
             where.is_file() and where.stat().st_size > 0
         )
