@@ -98,6 +98,11 @@ def train_command(
     check_number("--minutes", minutes, low=0, low_open=True, high=60 * 24 * 365)
     if out.exists() and not out.is_dir():
         _fail(f"--out {str(out)!r} is a file; give a folder for the run.")
+    if not resume and (out / "model.zip").exists():
+        _fail(
+            f"--out {str(out)!r} already holds a trained run (model.zip); pass --resume to "
+            "continue it, or choose another --out (nothing is overwritten)."
+        )
     env_kw = _json_option(env_kwargs, "--env-kwargs")
     algo_kw = _json_option(algo_kwargs, "--algo-kwargs")
     if resume:

@@ -86,3 +86,18 @@ def test_sigint_and_sigterm_ask_the_loop_to_stop_and_a_second_one_stops_at_once(
                 os.kill(os.getpid(), sig)
                 time.sleep(0.05)
         assert signal.getsignal(sig) is old  # the handlers are restored
+
+
+def test_train_never_overwrites_a_trained_run_without_resume(tmp_path):
+    from typer.testing import CliRunner
+
+    from servogym.cli import app
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.zip").write_bytes(b"a model")
+    r = CliRunner().invoke(app, ["train", "--env", "servogym/Tune-PMD-Rotary-v0",
+                                 "--timesteps", "10", "--out", str(out)])  # fmt: skip
+    assert r.exit_code == 2, r.output
+    assert "already holds a trained run (model.zip); pass --resume" in r.output
+    assert (out / "model.zip").read_bytes() == b"a model"
