@@ -176,7 +176,9 @@ def read_params_file(
 
     Args:
         path: The file.
-        fmt, model, axis: As for :func:`load_params_file`.
+        fmt: As for :func:`load_params_file`.
+        model: As for :func:`load_params_file`.
+        axis: As for :func:`load_params_file`.
         what: The option that named the file, for messages (``"--params"``).
     """
     from servogym._files import check_against_manifest
