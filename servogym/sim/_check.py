@@ -296,7 +296,7 @@ def _run_case(
     )
     family = get_plant(scenario.plant)
     failures = case_failures(result, op, limits, family.joint_unit)
-    need = required_peak_effort(family, evaluator.plant.values, sc.moves)
+    need = required_peak_effort(family, evaluator.plant.values, sc.moves, plant=evaluator.plant)
     share = float(params.motor_limit) / FULL_SCALE
     if share < need.fraction:  # the cause of what else fails: named first
         failures.insert(0, command_limit_failure(case.name, share, need))
