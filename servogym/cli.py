@@ -342,23 +342,30 @@ def _export_format(fmt: str, family, model: str) -> str:
     )
 
 
+PlantParamOption = Annotated[
+    list[str] | None,
+    typer.Option("--plant-param", help="Plant parameter NAME=VALUE (repeatable)."),
+]
+"""``--plant-param`` of ``simulate`` and ``check``."""
+
+PlantFileOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--plant-file",
+        help="A plant.json from `servogym calibrate`: its values, --plant-param on top.",
+    ),
+]
+"""``--plant-file`` of ``simulate`` and ``check``."""
+
+
 @app.command()
 def simulate(
     chip: Annotated[
         str | None, typer.Option(help="Chip model, e.g. MC2100 (default: the params file's).")
     ] = None,
     plant: Annotated[str, typer.Option(help="Plant family (see `servogym plants`).")] = "rotary",
-    plant_param: Annotated[
-        list[str] | None,
-        typer.Option("--plant-param", help="Plant parameter NAME=VALUE (repeatable)."),
-    ] = None,
-    plant_file: Annotated[
-        Path | None,
-        typer.Option(
-            "--plant-file",
-            help="A plant.json from `servogym calibrate`: its values, --plant-param on top.",
-        ),
-    ] = None,
+    plant_param: PlantParamOption = None,
+    plant_file: PlantFileOption = None,
     params: Annotated[
         Path | None,
         typer.Option(help=PARAMS_FILE_HELP + " Default: the chip's defaults."),
@@ -495,17 +502,8 @@ def check(
     chip: Annotated[
         str | None, typer.Option(help="Chip model (default: the file's; must agree).")
     ] = None,
-    plant_param: Annotated[
-        list[str] | None,
-        typer.Option("--plant-param", help="Plant parameter NAME=VALUE (repeatable)."),
-    ] = None,
-    plant_file: Annotated[
-        Path | None,
-        typer.Option(
-            "--plant-file",
-            help="A plant.json from `servogym calibrate`: its values, --plant-param on top.",
-        ),
-    ] = None,
+    plant_param: PlantParamOption = None,
+    plant_file: PlantFileOption = None,
     min_gain_margin: Annotated[
         float, typer.Option("--min-gain-margin", help="Smallest gain margin (dB).")
     ] = 6.0,

@@ -103,7 +103,7 @@ def to_csv(trace: Trace, aux_names: tuple[str, str] = ("", "")) -> str:
     return out.getvalue()
 
 
-def _int_cell(text: str, column: str, line: int) -> int:
+def _float_cell(text: str, column: str, line: int) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -115,6 +115,11 @@ def _int_cell(text: str, column: str, line: int) -> int:
             f"line {line}: column {column} must be finite (no NaN or infinity); "
             f"got {column}={text!r}."
         )
+    return value
+
+
+def _int_cell(text: str, column: str, line: int) -> int:
+    value = _float_cell(text, column, line)
     if value != int(value):
         raise TraceError(f"line {line}: column {column} holds whole counts; got {column}={text!r}.")
     return int(value)
@@ -161,18 +166,7 @@ def parse_csv(text: str, family: str, source: str = "trace") -> Trace:
         for name, i in index.items():
             cell = cells[i].strip()
             if name == "time_s":
-                try:
-                    t = float(cell)
-                except ValueError:
-                    raise TraceError(
-                        f"line {line}: column time_s must be a number; got time_s={cell!r}."
-                    ) from None
-                if not math.isfinite(t):
-                    raise TraceError(
-                        f"line {line}: column time_s must be finite (no NaN or infinity); "
-                        f"got time_s={cell!r}."
-                    )
-                data[name].append(t)
+                data[name].append(_float_cell(cell, name, line))
             else:
                 data[name].append(_int_cell(cell, name, line))
     names_aux = AUX_COLUMNS.get(family, ("", ""))
