@@ -1,6 +1,8 @@
 """Exact emulations of servo-chip filters, their legal parameter ranges, profiles and exports.
 
-Every chip family registers a :class:`ChipFamily`; :func:`get_chip` finds a model by name.
+Every chip family is one :class:`ChipFamily` object, listed by :func:`families`; its registers
+are one declarative table (:mod:`servogym.chips._registers`); :func:`get_chip` finds a model
+by name.
 """
 
 from servogym.chips._family import (

@@ -69,6 +69,6 @@ __all__ = [
     "to_json",
 ]
 
-from servogym.chips.parker6k._family import PARKER6K, StoredSetActions  # registers the family
+from servogym.chips.parker6k._family import PARKER6K, StoredSetActions  # listed by the registry
 
 __all__ += ["PARKER6K", "StoredSetActions"]

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
+from servogym.chips._base import FAMILY_CODES, ChipFamily, Move
 from servogym.chips._space import ParameterError
 from servogym.chips.parker6k import _export, _kernel, _profile, _response
 from servogym.chips.parker6k._params import (
@@ -64,7 +64,7 @@ class Parker6kFamily(ChipFamily):
         )
 
 
-PARKER6K = register_family(Parker6kFamily())
+PARKER6K = Parker6kFamily()
 
 
 class StoredSetActions:

@@ -1,6 +1,6 @@
 """Delta Tau Turbo PMAC2 / Geo Brick LV PID + feed-forward + notch filter, per docs/chips/pmac.md.
 
-Importing this package registers the ``"pmac"`` family in the chip registry.
+The family object :data:`PMAC` is what the chip registry lists as ``"pmac"``.
 """
 
 from servogym.chips.pmac._export import (
@@ -88,6 +88,6 @@ __all__ = [
     "to_json",
 ]
 
-from servogym.chips.pmac._family import PMAC  # registers the family
+from servogym.chips.pmac._family import PMAC  # the family object the registry lists
 
 __all__ += ["PMAC"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from types import MappingProxyType
 from typing import Any
 
-from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
+from servogym.chips._base import FAMILY_CODES, ChipFamily, Move
 from servogym.chips.pmac import _export, _kernel, _profile, _response
 from servogym.chips.pmac._params import (
     CHIP_MODELS,
@@ -53,4 +53,4 @@ class PMACFamily(ChipFamily):
         )
 
 
-PMAC = register_family(PMACFamily())
+PMAC = PMACFamily()

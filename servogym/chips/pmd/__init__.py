@@ -50,6 +50,6 @@ __all__ = [
     "velocity_contouring",
 ]
 
-from servogym.chips.pmd._family import PMD  # registers the family
+from servogym.chips.pmd._family import PMD  # the family object the registry lists
 
 __all__ += ["PMD"]

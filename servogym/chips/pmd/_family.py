@@ -5,7 +5,7 @@ from __future__ import annotations
 from types import MappingProxyType
 from typing import Any
 
-from servogym.chips._family import FAMILY_CODES, ChipFamily, Move, register_family
+from servogym.chips._base import FAMILY_CODES, ChipFamily, Move
 from servogym.chips.pmd import _export, _kernel, _profile, _response
 from servogym.chips.pmd._params import CHIP_MODELS, PMDAssumptions, PMDParams, parameter_space
 from servogym.chips.pmd._reference import PMDReferenceFilter
@@ -50,4 +50,4 @@ class PMDFamily(ChipFamily):
         )
 
 
-PMD = register_family(PMDFamily())
+PMD = PMDFamily()
