@@ -47,6 +47,15 @@ def benchmark_command(
     ] = "50",
     seeds: Annotated[int, typer.Option("--seeds", help="Seeds 0..N-1 per tuner.")] = 5,
     workers: Annotated[int, typer.Option("--workers", help="Processes.")] = 1,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler",
+            help="Run the jobs on an existing Dask cluster: the address `dask scheduler` "
+            "prints, e.g. tcp://10.0.0.5:8786 (every worker needs servogym; "
+            "docs/benchmark.md). Without it: --workers local processes.",
+        ),
+    ] = None,
     limit: Annotated[
         list[str] | None,
         typer.Option(
@@ -96,8 +105,12 @@ def benchmark_command(
     )
     from servogym.autotune.bench._report import write_report
     from servogym.autotune.bench._runner import (
+        ClusterError,
         Job,
         TunerLimit,
+        check_scheduler_address,
+        check_workers,
+        connect,
         estimate_seconds,
         load_job,
         load_results,
@@ -110,6 +123,21 @@ def benchmark_command(
     console = Console(stderr=as_json)
     check_count("--seeds", seeds, high=1000)
     check_count("--workers", workers, high=1024)
+    if scheduler is not None:
+        try:
+            check_scheduler_address(scheduler)
+        except ValueError as exc:
+            fail(exc)
+        if reference:
+            fail(
+                "--scheduler applies to benchmark jobs, not to --reference (the reference "
+                f"search runs in --workers local processes); drop --scheduler {scheduler}."
+            )
+        if workers != 1:
+            fail(
+                f"--workers {workers} applies to the local process pool; with --scheduler the "
+                "cluster's workers run the jobs (dask worker --nworkers N); drop --workers."
+            )
     tuner_list = [t.strip() for t in tuners.split(",")]
     if not [t for t in tuner_list if t]:
         fail(f"--tuners must name at least one tuner; got --tuners {tuners!r}.")
@@ -186,6 +214,16 @@ def benchmark_command(
                 f"--seed-from {str(seed_from)!r} holds no finished benchmark job of the "
                 f"{len(ids)} instance(s) asked (runs.jsonl or jobs/); give a benchmark's --out."
             )
+    cluster_threads = 0
+    if scheduler is not None:  # refused before anything is written: a scheduler that is
+        try:  # not there, a worker that cannot run servogym's jobs
+            client = connect(scheduler)
+            try:
+                cluster_threads = sum(check_workers(client).values())
+            finally:
+                client.close()
+        except ClusterError as exc:
+            fail(exc)
     check_writable_folder("--out", out)
     if reference and seed_from is not None:
         t0 = time.perf_counter()
@@ -251,14 +289,18 @@ def benchmark_command(
     config = {
         "suite": suite, "split": split, "tuners": tuner_list, "budgets": budgets,
         "seeds": seeds, "workers": workers, "limits": {k: vars(v) for k, v in limits.items()},
-        "instances": ids, "n_jobs": len(jobs),
+        "instances": ids, "n_jobs": len(jobs), "scheduler": scheduler,
     }  # fmt: skip
     (out / "config.json").write_text(json.dumps(config, indent=1) + "\n")
+    n_procs, where = workers, f"{workers} process(es)"
+    if scheduler is not None:
+        n_procs = cluster_threads
+        where = f"the {cluster_threads} worker thread(s) the Dask cluster at {scheduler} has now"
     console.print(
         f"{len(jobs)} jobs, {len(todo)} to run ({len(ids)} instances, tuners "
         f"{', '.join(tuner_list)}, budgets "
         f"{budgets}, {seeds} seeds); {len(skipped)} (tuner, instance) pairs n/a. Estimate: "
-        f"{est:.0f} CPU-s, about {est / max(workers, 1) / 60:.1f} min on {workers} process(es) "
+        f"{est:.0f} CPU-s, about {est / max(n_procs, 1) / 60:.1f} min on {where} "
         f"(mean evaluation {1000 * sum(eval_s.values()) / len(eval_s):.1f} ms of CPU, median of "
         f"3 per instance)."
     )
@@ -276,7 +318,11 @@ def benchmark_command(
                            f"s{job.seed}: best {best} in {rec['wall_s']:.1f} s")  # fmt: skip
             bar.advance(task)
 
-        n_run, n_skip = run_jobs(jobs, out, workers=workers, on_done=on_done)
+        try:
+            n_run, n_skip = run_jobs(jobs, out, workers=workers, scheduler=scheduler,
+                                     on_done=on_done)  # fmt: skip
+        except ClusterError as exc:
+            fail(f"--scheduler {scheduler}: {exc}")
     console.print(f"{n_run} jobs run, {n_skip} already finished; {time.perf_counter() - t0:.0f} s")
     pack_results(out)
     wanted = {j.key for j in jobs}

@@ -1,10 +1,18 @@
-"""Run tuners on the instances of a suite: tuner x instance x seed jobs in a process pool.
+"""Run tuners on the instances of a suite: tuner x instance x seed jobs in a process pool
+or on a Dask cluster.
 
-Each job runs one study through :func:`servogym.autotune.run_study` (in memory, one
-evaluation thread, batches of one trial: every sampler sees every result before it asks
-again) and writes one compact JSON file with every trial's cost, safety flags and time. A
-finished job's file exists; a rerun skips it, so an interrupted benchmark resumes where it
-stopped and, the studies being deterministic, ends with the same results.
+Each job (a cell of the benchmark) runs one study through :func:`servogym.autotune.run_study`
+(in memory, one evaluation thread, batches of one trial: every sampler sees every result
+before it asks again) and returns one compact record with every trial's cost, safety flags
+and time. The process that runs the benchmark (never a worker) stores each record, as it
+arrives, in one file named by the job's key, written once: a finished job's file exists, a
+rerun skips it, so an interrupted benchmark resumes where it stopped and, the studies being
+deterministic, ends with the same results.
+
+Where the jobs run: in this process (``workers=1``), in a local process pool (``workers``
+processes), or on an existing Dask cluster (``scheduler``: the address ``dask scheduler``
+prints). Dask reruns the job of a worker that dies on another worker; its record still
+arrives once, and is stored once.
 
 Anytime results (as COCO): the Optuna samplers never look at the total budget, so one run at
 the largest budget gives the best-so-far at every smaller budget exactly. The classical
@@ -21,6 +29,7 @@ import json
 import multiprocessing
 import os
 import time
+import uuid
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -36,8 +45,10 @@ FLAG_FOLLOWING_ERROR = 2
 FLAG_SATURATION = 4
 FLAG_EXPERIMENT = 8
 FLAG_FAILED = 16
-UNSAFE_FLAGS = FLAG_DIVERGED | FLAG_FOLLOWING_ERROR | FLAG_SATURATION
-"""A trial is unsafe (a risk on hardware) when any of these is set."""
+FLAG_MARGINS = 32
+UNSAFE_FLAGS = FLAG_DIVERGED | FLAG_FOLLOWING_ERROR | FLAG_SATURATION | FLAG_MARGINS
+"""A trial is unsafe (a risk on hardware) when any of these is set: it diverged or violated
+a constraint the tune command sets (following error, saturation, gain or phase margin)."""
 
 FORMAT_VERSION = 1
 
@@ -199,14 +210,72 @@ def _trial_rows(trials: Sequence[Any]) -> tuple[list[float | None], list[int]]:
                 f |= FLAG_FOLLOWING_ERROR
             if c.get("saturation_fraction", 0) > 0:
                 f |= FLAG_SATURATION
+            if c.get("gain_margin", 0) > 0 or c.get("phase_margin", 0) > 0:
+                f |= FLAG_MARGINS
             costs.append(float(f"{t.values[0]:.6g}"))
         flags.append(f)
     return costs, flags
 
 
-def run_job(job: Job, out_dir: str) -> dict[str, Any]:
-    """Run one job and write its result file; returns the record written."""
+RESULT_PACKAGES = ("servogym", "optuna", "numpy", "scipy", "mujoco", "numba", "cmaes", "torch")
+"""Packages a job's result depends on: every Dask worker must have the versions the
+benchmark process has (:func:`environment`)."""
+
+
+@functools.cache
+def environment() -> dict[str, str]:
+    """The versions a job's result depends on in this process: :data:`RESULT_PACKAGES`
+    and the chip arithmetic specs (the spec version changes with any change of a chip's
+    arithmetic)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from servogym.chips.parker6k import SPEC_VERSION as PARKER6K_SPEC
+    from servogym.chips.pmac import SPEC_VERSION as PMAC_SPEC
+    from servogym.chips.pmd import SPEC_VERSION as PMD_SPEC
+
+    out = {}
+    for name in RESULT_PACKAGES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "not installed"
+    out.update(pmd_spec=PMD_SPEC, parker6k_spec=PARKER6K_SPEC, pmac_spec=PMAC_SPEC)
+    return out
+
+
+class ClusterError(RuntimeError):
+    """The Dask cluster cannot run the benchmark: no scheduler at the address, a worker
+    without servogym or with other versions, or a job that failed or killed its workers."""
+
+
+def _version_diff(expected: Mapping[str, str], found: Mapping[str, str]) -> str:
+    """``"numba 0.60.0 (benchmark process: 0.61.0); ..."``, or ``""`` when equal."""
+    return "; ".join(f"{k} {found.get(k)} (benchmark process: {v})"
+                     for k, v in expected.items() if found.get(k) != v)  # fmt: skip
+
+
+def _mismatch(where: str, diff: str) -> ClusterError:
+    return ClusterError(
+        f"{where} has other versions than the benchmark process, so its results would not "
+        f"be comparable: {diff}. Install the same servogym and packages on every worker "
+        "(docs/benchmark.md, 'On several machines')."
+    )
+
+
+def compute_job(job: Job, expected: Mapping[str, str] | None = None) -> dict[str, Any]:
+    """Run one job and return its record (nothing is written: see :func:`store_record`).
+
+    Args:
+        job: The job.
+        expected: On a Dask worker, the benchmark process's :func:`environment`; a worker
+            whose versions differ raises :class:`ClusterError` instead of running.
+    """
     import warnings
+
+    if expected is not None and (diff := _version_diff(expected, environment())):
+        import socket
+
+        raise _mismatch(f"Dask worker on {socket.gethostname()}", diff)
 
     from servogym.autotune._job import run_study
     from servogym.autotune._session import TuneError
@@ -249,11 +318,45 @@ def run_job(job: Job, out_dir: str) -> dict[str, Any]:
                 best_values=result.best_values,
                 best_feasible=result.feasible,
             )
+    return record
+
+
+def store_record(out_dir: str | Path, job: Job, record: Mapping[str, Any]) -> bool:
+    """Write a finished job's record to ``out_dir/jobs/<job.key>``, once.
+
+    The file appears whole or not at all (written aside, then linked into place). A job
+    that already has a valid record (in ``runs.jsonl`` or ``jobs/``, e.g. a job that ran
+    twice) keeps it: nothing is written and the answer is ``False``. A damaged record is
+    replaced.
+
+    Returns:
+        Whether this call stored the record.
+    """
+    if load_job(out_dir, job) is not None:
+        return False
     path = Path(out_dir) / "jobs" / job.key
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".tmp{os.getpid()}")
+    tmp = path.with_suffix(f".tmp{os.getpid()}-{uuid.uuid4().hex[:8]}")
     tmp.write_text(json.dumps(record, separators=(",", ":")))
-    os.replace(tmp, path)  # atomic: a killed job leaves no result file
+    try:
+        if path.exists():  # damaged (load_job refused it): replace it
+            os.replace(tmp, path)
+        else:
+            try:  # exclusive: of two processes storing the same job, one wins
+                os.link(tmp, path)
+            except FileExistsError:
+                return False
+            except OSError:  # a file system without hard links
+                os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return True
+
+
+def run_job(job: Job, out_dir: str) -> dict[str, Any]:
+    """Run one job and store its record (:func:`store_record`); returns the record."""
+    record = compute_job(job)
+    store_record(out_dir, job, record)
     return record
 
 
@@ -352,21 +455,35 @@ def run_jobs(
     out_dir: str | Path,
     *,
     workers: int = 1,
+    scheduler: str | Any | None = None,
     on_done: Callable[[Job, dict[str, Any] | None, bool], None] | None = None,
 ) -> tuple[int, int]:
-    """Run the jobs that have no result file yet, longest first, in ``workers`` processes.
+    """Run the jobs that have no stored record yet, longest first, and store each record
+    in this process as it arrives (:func:`store_record`: once per job).
 
     Args:
         jobs: The jobs.
-        out_dir: Output folder (results under ``out_dir/jobs``).
-        workers: Processes (1: in this process).
-        on_done: Called as ``on_done(job, record, skipped)`` for each job.
+        out_dir: Output folder (records under ``out_dir/jobs``).
+        workers: Local processes (1: in this process). Must be 1 with ``scheduler``.
+        scheduler: Run the jobs on this Dask cluster instead: the scheduler's address
+            (``tcp://HOST:8786``) or a connected ``distributed.Client``. Every worker needs
+            servogym and the versions of :data:`RESULT_PACKAGES` this process has.
+        on_done: Called as ``on_done(job, record, skipped)`` for each job (``record`` is
+            ``None`` for a skipped job).
 
     Returns:
-        (jobs run now, jobs skipped because already finished).
+        (jobs run and stored now, jobs skipped because already finished).
+
+    Raises:
+        ClusterError: The cluster cannot run the jobs (see :class:`ClusterError`).
     """
+    if scheduler is not None and workers != 1:
+        raise ValueError(
+            f"workers applies to the local process pool; with a Dask scheduler the cluster's "
+            f"workers run the jobs (dask worker --nworkers N); got workers={workers}."
+        )
     out_dir = str(out_dir)
-    todo = []
+    todo: dict[str, Job] = {}
     n_skipped = 0
     for job in jobs:
         if load_job(out_dir, job) is not None:
@@ -374,24 +491,165 @@ def run_jobs(
             if on_done is not None:
                 on_done(job, None, True)
         else:
-            todo.append(job)
-    todo.sort(key=_cost_weight, reverse=True)
-    if workers <= 1:
-        for job in todo:
-            rec = run_job(job, out_dir)
-            if on_done is not None:
-                on_done(job, rec, False)
-        return len(todo), n_skipped
-    ctx = multiprocessing.get_context("spawn")
-    with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-        futures = {pool.submit(run_job, job, out_dir): job for job in todo}
-        try:
-            for fut in cf.as_completed(futures):
-                rec = fut.result()
-                if on_done is not None:
-                    on_done(futures[fut], rec, False)
-        except BaseException:
-            for fut in futures:
-                fut.cancel()
-            raise
-    return len(todo), n_skipped
+            todo.setdefault(job.key, job)
+    ordered = sorted(todo.values(), key=_cost_weight, reverse=True)
+    counts = [0, n_skipped]
+
+    def arrived(job: Job, rec: dict[str, Any]) -> None:
+        stored = store_record(out_dir, job, rec)
+        counts[0 if stored else 1] += 1
+        if on_done is not None:
+            on_done(job, rec if stored else None, not stored)
+
+    if scheduler is not None:
+        _run_on_cluster(ordered, scheduler, arrived)
+    elif workers <= 1:
+        for job in ordered:
+            arrived(job, compute_job(job))
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            futures = {pool.submit(compute_job, job): job for job in ordered}
+            try:
+                for fut in cf.as_completed(futures):
+                    arrived(futures[fut], fut.result())
+            except BaseException:
+                for fut in futures:
+                    fut.cancel()
+                raise
+    return counts[0], counts[1]
+
+
+# ------------------------------------------------------------------------- Dask cluster
+
+CONNECT_TIMEOUT_S = 10.0
+"""Seconds to wait for the Dask scheduler to answer."""
+
+
+def check_scheduler_address(address: str) -> str:
+    """``address`` if it has the form of a Dask scheduler's address, ``SCHEME://HOST:PORT``
+    with a scheme Dask knows (tcp, tls, ...); otherwise ``ValueError`` saying so."""
+    from distributed.comm.registry import backends
+
+    schemes = sorted(s for s in backends if s != "inproc")
+    scheme, sep, loc = address.partition("://")
+    host, colon, port = loc.rpartition(":")
+    if (
+        not sep
+        or scheme not in schemes
+        or not colon
+        or not host
+        or not port.isdigit()
+        or not 1 <= int(port) <= 65535
+    ):
+        raise ValueError(
+            "--scheduler takes the address `dask scheduler` prints, SCHEME://HOST:PORT with "
+            f"SCHEME one of {', '.join(schemes)} and 1 <= PORT <= 65535 (e.g. "
+            f"tcp://10.0.0.5:8786); got --scheduler {address!r}."
+        )
+    return address
+
+
+def connect(address: str, timeout: float | None = None) -> Any:
+    """A ``distributed.Client`` connected to the scheduler at ``address``.
+
+    Args:
+        address: The scheduler's address, ``SCHEME://HOST:PORT``.
+        timeout: Seconds to wait for the scheduler (``None``: :data:`CONNECT_TIMEOUT_S`).
+
+    Raises:
+        ValueError: The address is malformed (:func:`check_scheduler_address`).
+        ClusterError: No scheduler answered within ``timeout`` seconds.
+    """
+    from distributed import Client
+
+    check_scheduler_address(address)
+    timeout = CONNECT_TIMEOUT_S if timeout is None else timeout
+    try:
+        return Client(address, timeout=timeout, set_as_default=False)
+    except (OSError, TimeoutError) as exc:
+        raise ClusterError(
+            f"no Dask scheduler answered at --scheduler {address!r} within {timeout:g} s "
+            f"({exc}); start one with `dask scheduler` and pass the address it prints."
+        ) from None
+
+
+def _worker_environment() -> dict[str, str]:
+    return environment()
+
+
+def check_workers(client: Any) -> dict[str, int]:
+    """Check that every worker now in the cluster can run the jobs (servogym importable,
+    the versions of :func:`environment` equal to this process's); workers that join later
+    are checked by each job they run.
+
+    Returns:
+        ``{worker address: threads}``.
+
+    Raises:
+        ClusterError: A worker cannot import servogym or has other versions.
+    """
+    expected = environment()
+    found = client.run(_worker_environment, on_error="return")
+    for addr, env in sorted(found.items()):
+        if isinstance(env, BaseException):
+            raise ClusterError(
+                f"Dask worker {addr} cannot run servogym's jobs ({type(env).__name__}: {env}); "
+                "every worker needs servogym installed, with the versions the benchmark "
+                "process has (docs/benchmark.md, 'On several machines')."
+            )
+        diff = _version_diff(expected, env)
+        if diff:
+            raise _mismatch(f"Dask worker {addr}", diff)
+    return dict(client.nthreads())
+
+
+def _run_on_cluster(
+    jobs: Sequence[Job], scheduler: str | Any, arrived: Callable[[Job, dict[str, Any]], None]
+) -> None:
+    """Submit ``jobs`` to the Dask cluster (highest priority first) and hand each record to
+    ``arrived`` as its job completes, in this process."""
+    from distributed import as_completed
+
+    owned = isinstance(scheduler, str)
+    client = connect(scheduler) if owned else scheduler
+    futures: dict[Any, Job] = {}
+    try:
+        check_workers(client)
+        expected = environment()
+        token = uuid.uuid4().hex[:8]  # this run's tasks: never shared with another client's
+        for rank, job in enumerate(jobs):
+            fut = client.submit(compute_job, job, expected, key=f"servogym-job-{token}-{job.key}",
+                                priority=len(jobs) - rank)  # fmt: skip
+            futures[fut] = job
+        for fut in as_completed(list(futures), loop=client.loop):
+            job = futures[fut]
+            if fut.status != "finished":
+                raise _job_error(job, fut)
+            rec = fut.result()
+            fut.release()
+            arrived(job, rec)
+    finally:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            client.cancel(pending)
+        if owned:
+            client.close()
+
+
+def _job_error(job: Job, fut: Any) -> ClusterError:
+    try:
+        exc = fut.exception()
+    except BaseException as err:  # cancelled
+        exc = err
+    if isinstance(exc, ClusterError):
+        return exc
+    text = f"job {job.key} failed on the Dask cluster: {type(exc).__name__}: {exc}"
+    if isinstance(exc, ImportError):
+        text += "; every worker needs servogym installed (docs/benchmark.md)"
+    elif type(exc).__name__ == "KilledWorker":
+        text += ("; the job's workers died in turn (distributed.scheduler.allowed-failures); "
+                 "their logs say why (memory?)")  # fmt: skip
+    err = ClusterError(text)
+    err.__cause__ = exc
+    return err
