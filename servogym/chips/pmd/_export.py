@@ -40,6 +40,7 @@ from servogym.chips._space import ParameterError
 from servogym.chips.pmd._params import (
     CHIP_MODELS,
     SPEC_VERSION,
+    TABLE,
     PMDAssumptions,
     PMDChipModel,
     PMDParams,
@@ -99,29 +100,13 @@ class _Command:
 
 _N_WORDS = {"u16": 1, "s16": 1, "u32": 2, "s32": 2}
 
-# Navigator / Pilot: one command per register, in the order they are exported.
-_NAVIGATOR_COMMANDS: tuple[_Command, ...] = (
-    _Command("SetKp", 0x25, "kp", "u16"),
-    _Command("SetKi", 0x26, "ki", "u16"),
-    _Command("SetKd", 0x27, "kd", "u16"),
-    _Command("SetKvff", 0x2B, "kvff", "u16"),
-    _Command("SetKaff", 0x93, "kaff", "u16"),
-    _Command("SetIntegrationLimit", 0x95, "integration_limit", "u32"),
-    _Command("SetDerivativeTime", 0x9C, "derivative_time", "u16"),
-    _Command("SetKout", 0x9E, "kout", "u16"),
-    _Command("SetMotorBias", 0x0F, "bias", "s16"),
-    _Command("SetMotorLimit", 0x06, "motor_limit", "u16"),
-    _Command("SetPositionErrorLimit", 0x97, "position_error_limit", "u32"),
-    _Command("SetSampleTime", 0x38, "sample_time_us", "u16"),
+# One Set command per register, in the order they are exported, from the register table:
+# Navigator / Pilot every register; Magellan the ones outside SetPositionLoop (below).
+_NAVIGATOR_COMMANDS: tuple[_Command, ...] = tuple(
+    _Command(s.text, s.code, r.name, s.width) for r, s in TABLE.spelled("navigator")
 )
-
-# Magellan: the filter goes through SetPositionLoop (below); these registers keep their own
-# commands. SetSampleTime is 0x3B with a 32-bit argument on Magellan.
-_MAGELLAN_COMMANDS: tuple[_Command, ...] = (
-    _Command("SetMotorBias", 0x0F, "bias", "s16"),
-    _Command("SetMotorLimit", 0x06, "motor_limit", "u16"),
-    _Command("SetPositionErrorLimit", 0x97, "position_error_limit", "u32"),
-    _Command("SetSampleTime", 0x3B, "sample_time_us", "u32"),
+_MAGELLAN_COMMANDS: tuple[_Command, ...] = tuple(
+    _Command(s.text, s.code, r.name, s.width) for r, s in TABLE.spelled("magellan")
 )
 
 _SET_POSITION_LOOP = "SetPositionLoop"
@@ -129,30 +114,8 @@ _SET_POSITION_LOOP_OPCODE = 0x67
 _UPDATE = "Update"
 _UPDATE_OPCODE = 0x1A
 
-_BIQUAD_PARTS = (
-    ("Enable", "enable"),
-    ("B0", "b0"),
-    ("B1", "b1"),
-    ("B2", "b2"),
-    ("A1", "a1"),
-    ("A2", "a2"),
-    ("K", "k"),
-)
-
-MAGELLAN_POSITION_LOOP: tuple[tuple[int, str, str], ...] = (
-    (0, "PMDPositionLoopKp", "kp"),
-    (1, "PMDPositionLoopKi", "ki"),
-    (2, "PMDPositionLoopIlimit", "integration_limit"),
-    (3, "PMDPositionLoopKd", "kd"),
-    (4, "PMDPositionLoopDerivativeTime", "derivative_time"),
-    (5, "PMDPositionLoopKout", "kout"),
-    (6, "PMDPositionLoopKvff", "kvff"),
-    (7, "PMDPositionLoopKaff", "kaff"),
-    *(
-        (8 + 7 * (stage - 1) + i, f"PMDPositionLoopBiquad{stage}{suffix}", f"biquad{stage}_{field}")
-        for stage in (1, 2)
-        for i, (suffix, field) in enumerate(_BIQUAD_PARTS)
-    ),
+MAGELLAN_POSITION_LOOP: tuple[tuple[int, str, str], ...] = tuple(
+    (s.code, s.text, r.name) for r, s in TABLE.spelled("magellan_loop")
 )
 """Magellan ``SetPositionLoop`` parameters: (number, C-Motion enum name, register)."""
 

@@ -10,10 +10,9 @@ import dataclasses
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-import numpy as np
-
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
+from servogym.chips._registers import Register, RegisterSet, RegisterTable, Spelling
+from servogym.chips._space import ParameterError, ParameterSpace, resolve_name
 
 SPEC_VERSION = "pmd-spec-2"
 """Version of ``docs/chips/pmd.md`` the filter implements; written into exported files."""
@@ -193,188 +192,164 @@ A_INDEX: dict[str, int] = PMDAssumptions.index()
 # Registers
 # --------------------------------------------------------------------------------------
 
-_FILTER_SPECS = [
-    ParamSpec(
-        "kp", 0, U16_MAX, 100, "u16 (15 bits used)", log=True, unit="gain", doc="Proportional gain"
-    ),
-    ParamSpec(
-        "ki",
-        0,
-        U16_MAX,
-        80,
-        "u16 (15 bits used)",
-        log=True,
-        unit="gain",
-        doc="Integral gain; the term is ki * integral >> 8 (PMD-A2)",
-    ),
-    ParamSpec(
-        "kd", 0, U16_MAX, 400, "u16 (15 bits used)", log=True, unit="gain", doc="Derivative gain"
-    ),
-    ParamSpec(
-        "kvff",
-        0,
-        U16_MAX,
-        0,
-        "u16 (15 bits used)",
-        log=True,
-        unit="gain",
-        doc="Velocity feed-forward gain on the commanded velocity",
-    ),
-    ParamSpec(
-        "kaff",
-        0,
-        U16_MAX,
-        0,
-        "u16 (15 bits used)",
-        log=True,
-        unit="gain",
-        doc="Acceleration feed-forward gain on the commanded acceleration",
-    ),
-    ParamSpec(
-        "kout",
-        0,
-        U16_MAX,
-        13107,
-        "u16 (15 bits used)",
-        log=True,
-        unit="1/65536",
-        doc="Output scale: the filter result is multiplied by kout/65536",
-    ),
-    ParamSpec(
-        "integration_limit",
-        0,
-        U31_MAX,
-        10000,
-        "u32 (31 bits used)",
-        log=True,
-        unit="counts*cycles",
-        doc="Bound on the magnitude of the accumulated error",
-    ),
-    ParamSpec(
-        "derivative_time",
-        1,
-        U16_MAX,
-        10,
-        "u16 (15 bits used)",
-        log=True,
-        unit="cycles",
-        doc="Derivative sampled every derivative_time cycles, held between",
-        source="C",
-    ),
-    ParamSpec(
-        "bias",
-        S16_MIN,
-        S16_MAX,
-        0,
-        "s16",
-        unit="motor command",
-        doc="DC motor offset added to the filter output",
-    ),
-    ParamSpec(
-        "motor_limit",
-        0,
-        U16_MAX,
-        U16_MAX,
-        "u16 (15 bits used)",
-        tunable=False,
-        unit="motor command",
-        doc="Bound on the magnitude of the motor command",
-    ),
-    ParamSpec(
-        "position_error_limit",
-        0,
-        U31_MAX,
-        32767,
-        "u32 (31 bits used)",
-        tunable=False,
-        unit="counts",
-        doc="Motion error when the error magnitude exceeds it (PMD-A10, PMD-A11)",
-        source="A",
-    ),
-]
+
+def _nav(rank: int, command: str, opcode: int, width: str) -> Spelling:
+    """A Navigator/Pilot Set command: its export position, name, opcode and data width."""
+    return Spelling(command, opcode, width, rank)
 
 
-def _biquad_specs(stage: int) -> list[ParamSpec]:
+def _loop(number: int, enum: str) -> Spelling:
+    """A Magellan ``SetPositionLoop`` parameter: number and C-Motion enum (data: s32)."""
+    return Spelling(enum, number, "s32", number)
+
+
+_GAIN = dict(width="u16 (15 bits used)", log=True, unit="gain")
+_COEF = dict(width="s16", unit="1/2^14 (PMD-A12)", source="A", tunable=False)
+
+
+def _biquad_rows(stage: int) -> list[Register]:
     p = f"biquad{stage}_"
-    coef = dict(width="s16", unit="1/2^14 (PMD-A12)", source="A", tunable=False)
+    first = 8 + 7 * (stage - 1)
+
+    def loop(i: int, part: str) -> dict[str, Spelling]:
+        return {"magellan_loop": _loop(first + i, f"PMDPositionLoopBiquad{stage}{part}")}
+
     return [
-        ParamSpec(
-            p + "enable",
-            0,
-            1,
-            0,
-            "u16 flag",
-            tunable=False,
-            unit="flag",
-            doc=f"Biquad stage {stage} on (1) or bypassed (0)",
-            source="C",
+        Register(
+            p + "enable", 0, 1, 0, "u16 flag", tunable=False, unit="flag",
+            doc=f"Biquad stage {stage} on (1) or bypassed (0)", source="C",
+            spelling=loop(0, "Enable"),
         ),
-        ParamSpec(p + "b0", S16_MIN, S16_MAX, 16384, doc="Numerator coefficient b0", **coef),
-        ParamSpec(p + "b1", S16_MIN, S16_MAX, 0, doc="Numerator coefficient b1", **coef),
-        ParamSpec(p + "b2", S16_MIN, S16_MAX, 0, doc="Numerator coefficient b2", **coef),
-        ParamSpec(p + "a1", S16_MIN, S16_MAX, 0, doc="Denominator coefficient a1", **coef),
-        ParamSpec(p + "a2", S16_MIN, S16_MAX, 0, doc="Denominator coefficient a2", **coef),
-        ParamSpec(
-            p + "k",
-            0,
-            U16_MAX,
-            16384,
-            "u16 (15 bits used)",
-            tunable=False,
-            unit="1/2^14 (PMD-A12)",
-            doc="Stage output gain",
-            source="A",
+        Register(p + "b0", S16_MIN, S16_MAX, 16384, doc="Numerator coefficient b0",
+                 spelling=loop(1, "B0"), **_COEF),
+        Register(p + "b1", S16_MIN, S16_MAX, 0, doc="Numerator coefficient b1",
+                 spelling=loop(2, "B1"), **_COEF),
+        Register(p + "b2", S16_MIN, S16_MAX, 0, doc="Numerator coefficient b2",
+                 spelling=loop(3, "B2"), **_COEF),
+        Register(p + "a1", S16_MIN, S16_MAX, 0, doc="Denominator coefficient a1",
+                 spelling=loop(4, "A1"), **_COEF),
+        Register(p + "a2", S16_MIN, S16_MAX, 0, doc="Denominator coefficient a2",
+                 spelling=loop(5, "A2"), **_COEF),
+        Register(
+            p + "k", 0, U16_MAX, 16384, "u16 (15 bits used)", tunable=False,
+            unit="1/2^14 (PMD-A12)", doc="Stage output gain", source="A",
+            spelling=loop(6, "K"),
         ),
-    ]
+    ]  # fmt: skip
 
 
-_BIQUAD_SPECS = _biquad_specs(1) + _biquad_specs(2)
+TABLE = RegisterTable(
+    "pmd",
+    [
+        Register(
+            "kp", 0, U16_MAX, 100, doc="Proportional gain",
+            spelling={"navigator": _nav(0, "SetKp", 0x25, "u16"),
+                      "magellan_loop": _loop(0, "PMDPositionLoopKp")},
+            **_GAIN,
+        ),
+        Register(
+            "ki", 0, U16_MAX, 80, doc="Integral gain; the term is ki * integral >> 8 (PMD-A2)",
+            spelling={"navigator": _nav(1, "SetKi", 0x26, "u16"),
+                      "magellan_loop": _loop(1, "PMDPositionLoopKi")},
+            **_GAIN,
+        ),
+        Register(
+            "kd", 0, U16_MAX, 400, doc="Derivative gain",
+            spelling={"navigator": _nav(2, "SetKd", 0x27, "u16"),
+                      "magellan_loop": _loop(3, "PMDPositionLoopKd")},
+            **_GAIN,
+        ),
+        Register(
+            "kvff", 0, U16_MAX, 0, doc="Velocity feed-forward gain on the commanded velocity",
+            spelling={"navigator": _nav(3, "SetKvff", 0x2B, "u16"),
+                      "magellan_loop": _loop(6, "PMDPositionLoopKvff")},
+            **_GAIN,
+        ),
+        Register(
+            "kaff", 0, U16_MAX, 0,
+            doc="Acceleration feed-forward gain on the commanded acceleration",
+            spelling={"navigator": _nav(4, "SetKaff", 0x93, "u16"),
+                      "magellan_loop": _loop(7, "PMDPositionLoopKaff")},
+            **_GAIN,
+        ),
+        Register(
+            "kout", 0, U16_MAX, 13107, "u16 (15 bits used)", log=True, unit="1/65536",
+            doc="Output scale: the filter result is multiplied by kout/65536",
+            spelling={"navigator": _nav(7, "SetKout", 0x9E, "u16"),
+                      "magellan_loop": _loop(5, "PMDPositionLoopKout")},
+        ),
+        Register(
+            "integration_limit", 0, U31_MAX, 10000, "u32 (31 bits used)", log=True,
+            unit="counts*cycles", doc="Bound on the magnitude of the accumulated error",
+            spelling={"navigator": _nav(5, "SetIntegrationLimit", 0x95, "u32"),
+                      "magellan_loop": _loop(2, "PMDPositionLoopIlimit")},
+        ),
+        Register(
+            "derivative_time", 1, U16_MAX, 10, "u16 (15 bits used)", log=True, unit="cycles",
+            doc="Derivative sampled every derivative_time cycles, held between", source="C",
+            spelling={"navigator": _nav(6, "SetDerivativeTime", 0x9C, "u16"),
+                      "magellan_loop": _loop(4, "PMDPositionLoopDerivativeTime")},
+        ),
+        Register(
+            "bias", S16_MIN, S16_MAX, 0, "s16", unit="motor command",
+            doc="DC motor offset added to the filter output",
+            spelling={"navigator": _nav(8, "SetMotorBias", 0x0F, "s16"),
+                      "magellan": Spelling("SetMotorBias", 0x0F, "s16")},
+        ),
+        Register(
+            "motor_limit", 0, U16_MAX, U16_MAX, "u16 (15 bits used)", tunable=False,
+            unit="motor command", doc="Bound on the magnitude of the motor command",
+            spelling={"navigator": _nav(9, "SetMotorLimit", 0x06, "u16"),
+                      "magellan": Spelling("SetMotorLimit", 0x06, "u16")},
+        ),
+        Register(
+            "position_error_limit", 0, U31_MAX, 32767, "u32 (31 bits used)", tunable=False,
+            unit="counts", doc="Motion error when the error magnitude exceeds it (PMD-A10, "
+            "PMD-A11)", source="A",
+            spelling={"navigator": _nav(10, "SetPositionErrorLimit", 0x97, "u32"),
+                      "magellan": Spelling("SetPositionErrorLimit", 0x97, "u32")},
+        ),
+        # Range and default per model (PMDChipModel); Magellan's SetSampleTime is 0x3B, u32.
+        Register(
+            "sample_time_us", 1, 65535, 154, "u16", tunable=False, unit="us",
+            doc="Servo period for one enabled axis", source="A",
+            spelling={"navigator": _nav(11, "SetSampleTime", 0x38, "u16"),
+                      "magellan": Spelling("SetSampleTime", 0x3B, "u32")},
+        ),
+        *_biquad_rows(1),
+        *_biquad_rows(2),
+    ],
+)  # fmt: skip
+"""Every register of the PMD family, in kernel-array order, with its Navigator/Pilot command
+(``navigator``: name, opcode, data width, export position), its Magellan ``SetPositionLoop``
+parameter (``magellan_loop``) or Magellan command (``magellan``); docs/chips/pmd-export.md."""
 
-FIELDS: tuple[str, ...] = (
-    *(s.name for s in _FILTER_SPECS),
-    "sample_time_us",
-    *(s.name for s in _BIQUAD_SPECS),
-)
+FIELDS: tuple[str, ...] = TABLE.names
 """Every register of a PMDParams, in kernel-array order."""
 
-P_INDEX: dict[str, int] = {name: i for i, name in enumerate(FIELDS)}
-BIQUAD_FIELDS: tuple[str, ...] = tuple(s.name for s in _BIQUAD_SPECS)
+P_INDEX: dict[str, int] = TABLE.index()
+BIQUAD_FIELDS: tuple[str, ...] = tuple(n for n in FIELDS if n.startswith("biquad"))
 
 
 def parameter_space(model: str | PMDChipModel) -> ParameterSpace:
     """The legal registers of one PMD chip model (biquads only on MC58000)."""
     m = model if isinstance(model, PMDChipModel) else get_model(model)
-    sample = ParamSpec(
-        "sample_time_us",
-        m.min_sample_time_us,
-        65535,
-        m.sample_time_us,
-        "u16",
-        tunable=False,
-        unit="us",
-        doc="Servo period for one enabled axis",
-        source="A",
-    )
-    specs = list(_FILTER_SPECS)
+    changes: dict[str, dict[str, Any]] = {
+        "sample_time_us": {"low": m.min_sample_time_us, "default": m.sample_time_us}
+    }
     if m.kout_max != U16_MAX:
-        i = [s.name for s in specs].index("kout")
-        specs[i] = dataclasses.replace(
-            specs[i], high=m.kout_max, width="u16", source="C",
-            doc=specs[i].doc + " (65535 on Magellan, from its C-Motion code)",
-        )  # fmt: skip
-    specs.append(sample)
-    if m.has_biquads:
-        specs += _BIQUAD_SPECS
-    return ParameterSpace(m.name, specs)
+        doc = TABLE["kout"].doc + " (65535 on Magellan, from its C-Motion code)"
+        changes["kout"] = {"high": m.kout_max, "width": "u16", "source": "C", "doc": doc}
+    return TABLE.space(m.name, changes, omit=() if m.has_biquads else BIQUAD_FIELDS)
 
 
 @dataclasses.dataclass(frozen=True)
-class PMDParams:
+class PMDParams(RegisterSet):
     """A complete, legal parameter set for one axis of a PMD chip.
 
-    Field names are the chip's own register names. Construction validates every field
-    against the chip model's legal ranges and raises :class:`ParameterError` naming the
-    parameter, the value and the range; nothing is clamped.
+    Field names are the chip's own register names (:data:`TABLE`). Construction validates
+    every field against the chip model's legal ranges and raises :class:`ParameterError`
+    naming the parameter, the value and the range; nothing is clamped.
 
     Attributes:
         model: Chip model name (``"MC2100"`` ... ``"MC58000"``).
@@ -389,6 +364,13 @@ class PMDParams:
         biquad1_* / biquad2_*: MC58000 biquad stages (enable 0/1, coefficients s16, k u16);
             on other models they must keep their defaults (bypassed).
     """
+
+    TABLE: ClassVar[RegisterTable] = TABLE
+    MODELS: ClassVar[Mapping[str, PMDChipModel]] = CHIP_MODELS
+    DEFAULT_MODEL: ClassVar[str] = "MC2100"
+    MODEL_DEFAULTS: ClassVar[tuple[str, ...]] = ("sample_time_us",)
+    _get_model = staticmethod(get_model)
+    _space_of = staticmethod(parameter_space)
 
     model: str = "MC2100"
     kp: int = 100
@@ -419,65 +401,16 @@ class PMDParams:
     biquad2_k: int = 16384
 
     def __post_init__(self) -> None:
-        chip = get_model(self.model)
-        object.__setattr__(self, "model", chip.name)
-        if self.sample_time_us is None:
-            object.__setattr__(self, "sample_time_us", chip.sample_time_us)
-        space = parameter_space(chip)
-        for name in FIELDS:
-            value = getattr(self, name)
-            if name in space:
-                object.__setattr__(self, name, space[name].validate(value, context=chip.name))
-            elif value != _BIQUAD_DEFAULTS[name]:
-                raise ParameterError(
-                    f"{name} exists only on models with biquad stages (MC58000); "
-                    f"{chip.name} has none, so {name} must stay {_BIQUAD_DEFAULTS[name]}; "
-                    f"got {name}={value!r}."
-                )
+        self._check_registers()
 
-    @property
-    def chip(self) -> PMDChipModel:
-        """The chip model record."""
-        return CHIP_MODELS[self.model]
-
-    @property
-    def space(self) -> ParameterSpace:
-        """The legal ranges for this set's chip model."""
-        return parameter_space(self.model)
+    def _absent(self, name: str, chip: Any, value: Any) -> ParameterError:
+        default = self.TABLE[name].default
+        return ParameterError(
+            f"{name} exists only on models with biquad stages (MC58000); "
+            f"{chip.name} has none, so {name} must stay {default}; got {name}={value!r}."
+        )
 
     @property
     def sample_time_s(self) -> float:
         """Servo period in seconds."""
         return self.sample_time_us * 1e-6
-
-    @classmethod
-    def default(cls, model: str) -> PMDParams:
-        """The default set of a model (vendor example gains, see the spec)."""
-        return cls(model=model)
-
-    @classmethod
-    def from_dict(cls, values: Mapping[str, Any]) -> PMDParams:
-        """Build from a mapping of register names; unknown names raise with close matches."""
-        values = dict(values)
-        model = values.pop("model", "MC2100")
-        space = parameter_space(model)
-        for name in values:
-            if name not in FIELDS:
-                raise ParameterError(space.unknown_message(name))
-        return cls(model=model, **values)
-
-    def to_dict(self) -> dict[str, Any]:
-        """Every field, ``model`` first; biquad fields only for models that have them."""
-        space = self.space
-        return {"model": self.model, **{n: getattr(self, n) for n in FIELDS if n in space}}
-
-    def replace(self, **changes: Any) -> PMDParams:
-        """A copy with some registers changed (validated)."""
-        return dataclasses.replace(self, **changes)
-
-    def to_array(self) -> np.ndarray:
-        """All registers as an int64 array in :data:`FIELDS` order, for the kernel."""
-        return np.array([getattr(self, n) for n in FIELDS], dtype=np.int64)
-
-
-_BIQUAD_DEFAULTS = {s.name: s.default for s in _BIQUAD_SPECS}
