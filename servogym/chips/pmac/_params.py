@@ -11,12 +11,11 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from fractions import Fraction
-from typing import Any, ClassVar
-
-import numpy as np
+from typing import ClassVar
 
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
+from servogym.chips._registers import Register, RegisterSet, RegisterTable, Spelling
+from servogym.chips._space import ParameterSpace, resolve_name
 
 SPEC_VERSION = "pmac-spec-2"
 """Version of ``docs/chips/pmac.md`` the filter implements; written into exported files."""
@@ -200,248 +199,285 @@ A_INDEX: dict[str, int] = PMACAssumptions.index()
 # Registers
 # --------------------------------------------------------------------------------------
 
+
+def _ivar(number: int) -> dict[str, Spelling]:
+    """The I-variable of a register (dialect ``"ivar"``): the suffix ``xx`` of ``Ixx30``
+    (below 100, per motor) or the full number of a global I-variable (``7000``)."""
+    return {"ivar": Spelling(f"Ixx{number:02d}" if number < 100 else f"I{number}", number)}
+
+
 _GAIN = dict(width="s24", log=True, source="M")
 _COEF = dict(
     width="s24 (1 sign, 1 integer, 22 fraction bits)", unit="1/2^22", source="M", tunable=True
 )
 
-_SPECS = [
-    ParamSpec(
-        "position_loop_scale",
-        0,
-        U23_MAX,
-        96,
-        "u23",
-        tunable=False,
-        unit="factor",
-        doc="Ixx08: position scale; internal position resolution is 1/(32*Ixx08) count",
-    ),
-    ParamSpec(
-        "velocity_loop_scale",
-        0,
-        U23_MAX,
-        96,
-        "u23",
-        tunable=False,
-        unit="factor",
-        doc="Ixx09: velocity-loop scale on the actual-velocity feedback of Ixx31",
-    ),
-    ParamSpec(
-        "fatal_following_error_limit",
-        0,
-        U23_MAX,
-        32000,
-        "u23",
-        tunable=False,
-        unit="1/16 count",
-        doc="Ixx11: the motor is killed when the following error exceeds it; 0 disables",
-        source="M",  # range and default: Delta Tau's public Turbo PMAC quick reference
-    ),
-    ParamSpec(
-        "output_bias",
-        S16_MIN,
-        S16_MAX,
-        0,
-        "s16",
-        tunable=False,
-        unit="DAC bits",
-        doc="Ixx29: offset added to the output command (PMAC-A9)",
-    ),
-    ParamSpec(
-        "proportional_gain",
-        S24_MIN,
-        S24_MAX,
-        2000,
-        unit="Ixx08/2^19 DAC bits/count",
-        doc="Ixx30: proportional gain, and the overall loop gain multiplying every term",
-        **_GAIN,
-    ),
-    ParamSpec(
-        "derivative_gain",
-        S24_MIN,
-        S24_MAX,
-        1280,
-        unit="Ixx30*Ixx09/2^26 DAC bits/(count/cycle)",
-        doc="Ixx31: derivative gain on the actual velocity",
-        **_GAIN,
-    ),
-    ParamSpec(
-        "velocity_ff",
-        S24_MIN,
-        S24_MAX,
-        1280,
-        unit="Ixx30*Ixx08/2^26 DAC bits/(count/cycle)",
-        doc="Ixx32: velocity feed-forward gain on the commanded velocity",
-        **_GAIN,
-    ),
-    ParamSpec(
-        "integral_gain",
-        0,
-        U23_MAX,
-        0,
-        unit="Ixx30*Ixx08/2^42 DAC bits/(count*cycle)",
-        doc="Ixx33: integral gain; it scales the integrator's input",
-        **{**_GAIN, "width": "u23"},
-    ),
-    ParamSpec(
-        "integration_mode",
-        0,
-        1,
-        1,
-        "u1 flag",
-        tunable=False,
-        unit="flag",
-        doc="Ixx34: 1 integrates only while the commanded velocity is zero; 0 always",
-    ),
-    ParamSpec(
-        "acceleration_ff",
-        S24_MIN,
-        S24_MAX,
-        0,
-        unit="Ixx30*Ixx08/2^26 DAC bits/(count/cycle^2)",
-        doc="Ixx35: acceleration feed-forward gain on the commanded acceleration",
-        **_GAIN,
-    ),
-    ParamSpec("notch_n1", S24_MIN, S24_MAX, 0, doc="Ixx36: notch numerator n1", **_COEF),
-    ParamSpec("notch_n2", S24_MIN, S24_MAX, 0, doc="Ixx37: notch numerator n2", **_COEF),
-    ParamSpec("notch_d1", S24_MIN, S24_MAX, 0, doc="Ixx38: notch denominator d1", **_COEF),
-    ParamSpec("notch_d2", S24_MIN, S24_MAX, 0, doc="Ixx39: notch denominator d2", **_COEF),
-    ParamSpec(
-        "servo_cycle_extension",
-        0,
-        255,
-        0,
-        "u8",
-        tunable=False,
-        unit="servo interrupts - 1",
-        doc="Ixx60: the filter runs every Ixx60+1 servo interrupts",
-        source="M",  # range and default: Delta Tau's public Turbo PMAC quick reference
-    ),
-    ParamSpec(
-        "integration_limit",
-        S24_MIN,
-        S24_MAX,
-        4_194_304,
-        "s24",
-        tunable=False,
-        unit="1/16 count of integrator output",
-        doc="Ixx63: bound on the integrator output; 0 forces it to zero; < 0 also trips",
-    ),
-    ParamSpec(
-        "deadband_gain",
-        S16_MIN,
-        S16_MAX,
-        0,
-        "s16",
-        tunable=False,
-        unit="1/16",
-        doc="Ixx64: gain inside the deadband is (16+Ixx64)/16 of the nominal",
-    ),
-    ParamSpec(
-        "deadband_size",
-        0,
-        U15_MAX,
-        16,
-        "u15",
-        tunable=False,
-        unit="1/16 count",
-        doc="Ixx65: half-width of the deadband",
-    ),
-    ParamSpec(
-        "big_step_limit",
-        0,
-        U23_MAX,
-        4_194_304,
-        "u23",
-        tunable=False,
-        unit="1/16 count",
-        doc="Ixx67: largest following error let into the filter",
-    ),
-    ParamSpec(
-        "friction_ff",
-        0,
-        U15_MAX,
-        0,
-        "u15",
-        unit="DAC bits",
-        doc="Ixx68: added with the sign of the commanded velocity (PMAC-A8)",
-    ),
-    ParamSpec(
-        "output_limit",
-        0,
-        U15_MAX,
-        20480,
-        "u15",
-        tunable=False,
-        unit="DAC bits",
-        doc="Ixx69: bound on the magnitude of the output command",
-    ),
-    ParamSpec(
-        "max_phase_frequency_control",
-        0,
-        U15_MAX,
-        6527,
-        "u15",
-        tunable=False,
-        unit="master clock cycles",
-        doc="I7000: MaxPhase clock = 117.9648 MHz / (2*I7000+3)",
-        source="A",
-    ),
-    ParamSpec(
-        "phase_clock_divider",
-        0,
-        15,
-        0,
-        "u4",
-        tunable=False,
-        unit="MaxPhase cycles - 1",
-        doc="I7001: phase clock = MaxPhase clock / (I7001+1)",
-        source="A",
-    ),
-    ParamSpec(
-        "servo_clock_divider",
-        0,
-        15,
-        3,
-        "u4",
-        tunable=False,
-        unit="phase cycles - 1",
-        doc="I7002: servo clock = phase clock / (I7002+1)",
-        source="A",
-    ),
-]
+TABLE = RegisterTable(
+    "pmac",
+    [
+        Register(
+            "position_loop_scale",
+            0,
+            U23_MAX,
+            96,
+            "u23",
+            tunable=False,
+            unit="factor",
+            doc="Ixx08: position scale; internal position resolution is 1/(32*Ixx08) count",
+            spelling=_ivar(8),
+        ),
+        Register(
+            "velocity_loop_scale",
+            0,
+            U23_MAX,
+            96,
+            "u23",
+            tunable=False,
+            unit="factor",
+            doc="Ixx09: velocity-loop scale on the actual-velocity feedback of Ixx31",
+            spelling=_ivar(9),
+        ),
+        Register(
+            "fatal_following_error_limit",
+            0,
+            U23_MAX,
+            32000,
+            "u23",
+            tunable=False,
+            unit="1/16 count",
+            doc="Ixx11: the motor is killed when the following error exceeds it; 0 disables",
+            source="M",  # range and default: Delta Tau's public Turbo PMAC quick reference
+            spelling=_ivar(11),
+        ),
+        Register(
+            "output_bias",
+            S16_MIN,
+            S16_MAX,
+            0,
+            "s16",
+            tunable=False,
+            unit="DAC bits",
+            doc="Ixx29: offset added to the output command (PMAC-A9)",
+            spelling=_ivar(29),
+        ),
+        Register(
+            "proportional_gain",
+            S24_MIN,
+            S24_MAX,
+            2000,
+            unit="Ixx08/2^19 DAC bits/count",
+            doc="Ixx30: proportional gain, and the overall loop gain multiplying every term",
+            **_GAIN,
+            spelling=_ivar(30),
+        ),
+        Register(
+            "derivative_gain",
+            S24_MIN,
+            S24_MAX,
+            1280,
+            unit="Ixx30*Ixx09/2^26 DAC bits/(count/cycle)",
+            doc="Ixx31: derivative gain on the actual velocity",
+            **_GAIN,
+            spelling=_ivar(31),
+        ),
+        Register(
+            "velocity_ff",
+            S24_MIN,
+            S24_MAX,
+            1280,
+            unit="Ixx30*Ixx08/2^26 DAC bits/(count/cycle)",
+            doc="Ixx32: velocity feed-forward gain on the commanded velocity",
+            **_GAIN,
+            spelling=_ivar(32),
+        ),
+        Register(
+            "integral_gain",
+            0,
+            U23_MAX,
+            0,
+            unit="Ixx30*Ixx08/2^42 DAC bits/(count*cycle)",
+            doc="Ixx33: integral gain; it scales the integrator's input",
+            **{**_GAIN, "width": "u23"},
+            spelling=_ivar(33),
+        ),
+        Register(
+            "integration_mode",
+            0,
+            1,
+            1,
+            "u1 flag",
+            tunable=False,
+            unit="flag",
+            doc="Ixx34: 1 integrates only while the commanded velocity is zero; 0 always",
+            spelling=_ivar(34),
+        ),
+        Register(
+            "acceleration_ff",
+            S24_MIN,
+            S24_MAX,
+            0,
+            unit="Ixx30*Ixx08/2^26 DAC bits/(count/cycle^2)",
+            doc="Ixx35: acceleration feed-forward gain on the commanded acceleration",
+            **_GAIN,
+            spelling=_ivar(35),
+        ),
+        Register(
+            "notch_n1",
+            S24_MIN,
+            S24_MAX,
+            0,
+            doc="Ixx36: notch numerator n1",
+            **_COEF,
+            spelling=_ivar(36),
+        ),
+        Register(
+            "notch_n2",
+            S24_MIN,
+            S24_MAX,
+            0,
+            doc="Ixx37: notch numerator n2",
+            **_COEF,
+            spelling=_ivar(37),
+        ),
+        Register(
+            "notch_d1",
+            S24_MIN,
+            S24_MAX,
+            0,
+            doc="Ixx38: notch denominator d1",
+            **_COEF,
+            spelling=_ivar(38),
+        ),
+        Register(
+            "notch_d2",
+            S24_MIN,
+            S24_MAX,
+            0,
+            doc="Ixx39: notch denominator d2",
+            **_COEF,
+            spelling=_ivar(39),
+        ),
+        Register(
+            "servo_cycle_extension",
+            0,
+            255,
+            0,
+            "u8",
+            tunable=False,
+            unit="servo interrupts - 1",
+            doc="Ixx60: the filter runs every Ixx60+1 servo interrupts",
+            source="M",  # range and default: Delta Tau's public Turbo PMAC quick reference
+            spelling=_ivar(60),
+        ),
+        Register(
+            "integration_limit",
+            S24_MIN,
+            S24_MAX,
+            4_194_304,
+            "s24",
+            tunable=False,
+            unit="1/16 count of integrator output",
+            doc="Ixx63: bound on the integrator output; 0 forces it to zero; < 0 also trips",
+            spelling=_ivar(63),
+        ),
+        Register(
+            "deadband_gain",
+            S16_MIN,
+            S16_MAX,
+            0,
+            "s16",
+            tunable=False,
+            unit="1/16",
+            doc="Ixx64: gain inside the deadband is (16+Ixx64)/16 of the nominal",
+            spelling=_ivar(64),
+        ),
+        Register(
+            "deadband_size",
+            0,
+            U15_MAX,
+            16,
+            "u15",
+            tunable=False,
+            unit="1/16 count",
+            doc="Ixx65: half-width of the deadband",
+            spelling=_ivar(65),
+        ),
+        Register(
+            "big_step_limit",
+            0,
+            U23_MAX,
+            4_194_304,
+            "u23",
+            tunable=False,
+            unit="1/16 count",
+            doc="Ixx67: largest following error let into the filter",
+            spelling=_ivar(67),
+        ),
+        Register(
+            "friction_ff",
+            0,
+            U15_MAX,
+            0,
+            "u15",
+            unit="DAC bits",
+            doc="Ixx68: added with the sign of the commanded velocity (PMAC-A8)",
+            spelling=_ivar(68),
+        ),
+        Register(
+            "output_limit",
+            0,
+            U15_MAX,
+            20480,
+            "u15",
+            tunable=False,
+            unit="DAC bits",
+            doc="Ixx69: bound on the magnitude of the output command",
+            spelling=_ivar(69),
+        ),
+        Register(
+            "max_phase_frequency_control",
+            0,
+            U15_MAX,
+            6527,
+            "u15",
+            tunable=False,
+            unit="master clock cycles",
+            doc="I7000: MaxPhase clock = 117.9648 MHz / (2*I7000+3)",
+            source="A",
+            spelling=_ivar(7000),
+        ),
+        Register(
+            "phase_clock_divider",
+            0,
+            15,
+            0,
+            "u4",
+            tunable=False,
+            unit="MaxPhase cycles - 1",
+            doc="I7001: phase clock = MaxPhase clock / (I7001+1)",
+            source="A",
+            spelling=_ivar(7001),
+        ),
+        Register(
+            "servo_clock_divider",
+            0,
+            15,
+            3,
+            "u4",
+            tunable=False,
+            unit="phase cycles - 1",
+            doc="I7002: servo clock = phase clock / (I7002+1)",
+            source="A",
+            spelling=_ivar(7002),
+        ),
+    ],
+)
 
-FIELDS: tuple[str, ...] = tuple(s.name for s in _SPECS)
+FIELDS: tuple[str, ...] = TABLE.names
 """Every register of a PMACParams, in kernel-array order."""
 
-P_INDEX: dict[str, int] = {name: i for i, name in enumerate(FIELDS)}
+P_INDEX: dict[str, int] = TABLE.index()
 
-I_VARIABLES: dict[str, int] = {
-    "position_loop_scale": 8,
-    "velocity_loop_scale": 9,
-    "fatal_following_error_limit": 11,
-    "output_bias": 29,
-    "proportional_gain": 30,
-    "derivative_gain": 31,
-    "velocity_ff": 32,
-    "integral_gain": 33,
-    "integration_mode": 34,
-    "acceleration_ff": 35,
-    "notch_n1": 36,
-    "notch_n2": 37,
-    "notch_d1": 38,
-    "notch_d2": 39,
-    "servo_cycle_extension": 60,
-    "integration_limit": 63,
-    "deadband_gain": 64,
-    "deadband_size": 65,
-    "big_step_limit": 67,
-    "friction_ff": 68,
-    "output_limit": 69,
-    "max_phase_frequency_control": 7000,
-    "phase_clock_divider": 7001,
-    "servo_clock_divider": 7002,
-}
+I_VARIABLES: dict[str, int] = {name: sp.code for name, sp in TABLE.spellings("ivar").items()}
 """I-variable of each register: the suffix ``xx`` of ``Ixx30`` (below 100, per motor) or the
 full number of a global I-variable (``7000``)."""
 
@@ -481,13 +517,12 @@ def coefficient_raw(value: float | Fraction | str) -> int:
 def parameter_space(model: str | PMACChipModel) -> ParameterSpace:
     """The legal registers of one PMAC model (the clock defaults are the model's)."""
     m = get_model(model)
-    defaults = dict(zip(GLOBAL_FIELDS, m.clock_defaults, strict=True))
-    specs = [dataclasses.replace(s, default=defaults.get(s.name, s.default)) for s in _SPECS]
-    return ParameterSpace(m.name, specs)
+    defaults = zip(GLOBAL_FIELDS, m.clock_defaults, strict=True)
+    return TABLE.space(m.name, {name: {"default": value} for name, value in defaults})
 
 
 @dataclasses.dataclass(frozen=True)
-class PMACParams:
+class PMACParams(RegisterSet):
     """A complete, legal parameter set for one motor of a Turbo PMAC controller.
 
     Field names say what each I-variable does; :data:`I_VARIABLES` maps them one to one to the
@@ -519,6 +554,13 @@ class PMACParams:
         servo_clock_divider: I7002, 0 .. 15. ``None``: the model's default.
     """
 
+    TABLE: ClassVar[RegisterTable] = TABLE
+    MODELS: ClassVar[Mapping[str, PMACChipModel]] = CHIP_MODELS
+    DEFAULT_MODEL: ClassVar[str] = "TurboPMAC2"
+    MODEL_DEFAULTS: ClassVar[tuple[str, ...]] = GLOBAL_FIELDS
+    _get_model = staticmethod(get_model)
+    _space_of = staticmethod(parameter_space)
+
     model: str = "TurboPMAC2"
     position_loop_scale: int = 96
     velocity_loop_scale: int = 96
@@ -546,25 +588,7 @@ class PMACParams:
     servo_clock_divider: int | None = None
 
     def __post_init__(self) -> None:
-        chip = get_model(self.model)
-        object.__setattr__(self, "model", chip.name)
-        for name, default in zip(GLOBAL_FIELDS, chip.clock_defaults, strict=True):
-            if getattr(self, name) is None:
-                object.__setattr__(self, name, default)
-        space = parameter_space(chip)
-        for name in FIELDS:
-            value = space[name].validate(getattr(self, name), context=chip.name)
-            object.__setattr__(self, name, value)
-
-    @property
-    def chip(self) -> PMACChipModel:
-        """The chip model record."""
-        return CHIP_MODELS[self.model]
-
-    @property
-    def space(self) -> ParameterSpace:
-        """The legal ranges for this set's chip model."""
-        return parameter_space(self.model)
+        self._check_registers()
 
     @property
     def servo_period_ticks(self) -> int:
@@ -604,31 +628,3 @@ class PMACParams:
         """Ixx36..Ixx39 as exact values ``(n1, n2, d1, d2)``."""
         n1, n2, d1, d2 = (coefficient_value(getattr(self, f)) for f in COEFFICIENT_FIELDS)
         return n1, n2, d1, d2
-
-    @classmethod
-    def default(cls, model: str) -> PMACParams:
-        """The controller's factory defaults (Turbo Software Reference, see the spec)."""
-        return cls(model=model)
-
-    @classmethod
-    def from_dict(cls, values: Mapping[str, Any]) -> PMACParams:
-        """Build from a mapping of register names; unknown names raise with close matches."""
-        values = dict(values)
-        model = values.pop("model", "TurboPMAC2")
-        space = parameter_space(model)
-        for name in values:
-            if name not in FIELDS:
-                raise ParameterError(space.unknown_message(name))
-        return cls(model=model, **values)
-
-    def to_dict(self) -> dict[str, Any]:
-        """Every field, ``model`` first."""
-        return {"model": self.model, **{n: getattr(self, n) for n in FIELDS}}
-
-    def replace(self, **changes: Any) -> PMACParams:
-        """A copy with some registers changed (validated)."""
-        return dataclasses.replace(self, **changes)
-
-    def to_array(self) -> np.ndarray:
-        """All registers as an int64 array in :data:`FIELDS` order, for the kernel."""
-        return np.array([getattr(self, n) for n in FIELDS], dtype=np.int64)
