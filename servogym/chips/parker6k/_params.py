@@ -17,6 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from servogym.chips._assumptions import AssumptionSet
+from servogym.chips._registers import Register, RegisterSet, RegisterTable, Spelling
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec, resolve_name
 
 SPEC_VERSION = "parker6k-spec-2"
@@ -186,37 +187,18 @@ A_INDEX: dict[str, int] = Parker6kAssumptions.index()
 GAIN_FIELDS: tuple[str, ...] = ("sgp", "sgi", "sgv", "sgvf", "sgaf")
 """The five gains of a gain set, in the order SGSET stores them."""
 
-COMMANDS: dict[str, str] = {
-    "sgp": "SGP",
-    "sgi": "SGI",
-    "sgv": "SGV",
-    "sgvf": "SGVF",
-    "sgaf": "SGAF",
-    "sgilim": "SGILIM",
-    "soffs": "SOFFS",
-    "smper": "SMPER",
-    "ssfr": "SSFR",
-}
-"""The controller command that sets each register."""
 
-DECIMALS: dict[str, int] = {
-    "sgp": 2,
-    "sgi": 2,
-    "sgv": 2,
-    "sgvf": 2,
-    "sgaf": 4,
-    "sgilim": 3,
-    "soffs": 3,
-    "smper": 0,
-    "ssfr": 0,
-}
-"""Decimal places of each command's value: a register holds ``value * 10**DECIMALS``."""
+def _command(command: str, places: int) -> dict[str, Spelling]:
+    """The controller command that sets a register (dialect ``"6000"``, the 6250 and 6K
+    forms alike) and its decimal places: the register holds ``value * 10**places``."""
+    return {"6000": Spelling(command, places)}
 
 
-def _gain_spec(name: str, default: int, unit: str, doc: str, default_note: str = "") -> ParamSpec:
-    places = DECIMALS[name]
+def _gain(
+    name: str, places: int, default: int, unit: str, doc: str, default_note: str = ""
+) -> Register:
     top = f"{GAIN_MAX // 10**places}.{'9' * places}"
-    return ParamSpec(
+    return Register(
         name,
         0,
         GAIN_MAX,
@@ -227,6 +209,7 @@ def _gain_spec(name: str, default: int, unit: str, doc: str, default_note: str =
         doc=doc,
         source="A",
         default_note=default_note,
+        spelling=_command(name.upper(), places),
     )
 
 
@@ -234,78 +217,108 @@ _EXAMPLE_DEFAULT = (
     "the 6250 guide's worked tuning example (SGP 85, SGV 2.3), not a controller default"
 )
 
-_GAIN_SPECS = [
-    _gain_spec(
-        "sgp",
-        8500,
-        "0.01 uV/count (PK-A1)",
-        "Proportional gain SGP on the position error; 8500 is SGP85",
-        _EXAMPLE_DEFAULT,
-    ),
-    _gain_spec(
-        "sgi",
-        0,
-        "0.01 uV/(count*s) (PK-A1)",
-        "Integral gain SGI on the time integral of the position error",
-    ),
-    _gain_spec(
-        "sgv",
-        230,
-        "0.01 uV/(count/s) (PK-A1)",
-        "Velocity feedback gain SGV on the encoder velocity (PK-A3); 230 is SGV2.3",
-        _EXAMPLE_DEFAULT,
-    ),
-    _gain_spec(
-        "sgvf",
-        0,
-        "0.01 uV/(count/s) (PK-A1)",
-        "Velocity feed-forward gain SGVF on the commanded velocity",
-    ),
-    _gain_spec(
-        "sgaf",
-        0,
-        "0.0001 uV/(count/s^2) (PK-A1)",
-        "Acceleration feed-forward gain SGAF on the commanded acceleration",
-    ),
-]
+TABLE = RegisterTable(
+    "parker6k",
+    [
+        _gain(
+            "sgp",
+            2,
+            8500,
+            "0.01 uV/count (PK-A1)",
+            "Proportional gain SGP on the position error; 8500 is SGP85",
+            _EXAMPLE_DEFAULT,
+        ),
+        _gain(
+            "sgi",
+            2,
+            0,
+            "0.01 uV/(count*s) (PK-A1)",
+            "Integral gain SGI on the time integral of the position error",
+        ),
+        _gain(
+            "sgv",
+            2,
+            230,
+            "0.01 uV/(count/s) (PK-A1)",
+            "Velocity feedback gain SGV on the encoder velocity (PK-A3); 230 is SGV2.3",
+            _EXAMPLE_DEFAULT,
+        ),
+        _gain(
+            "sgvf",
+            2,
+            0,
+            "0.01 uV/(count/s) (PK-A1)",
+            "Velocity feed-forward gain SGVF on the commanded velocity",
+        ),
+        _gain(
+            "sgaf",
+            4,
+            0,
+            "0.0001 uV/(count/s^2) (PK-A1)",
+            "Acceleration feed-forward gain SGAF on the commanded acceleration",
+        ),
+        Register(
+            "sgilim",
+            0,
+            10_000,
+            10_000,
+            "u14, 0 .. 10.000 V in steps of 0.001",
+            tunable=False,
+            unit="mV",
+            doc="Integral windup limit SGILIM: bound on the integral term (PK-A4)",
+            source="A",
+            spelling=_command("SGILIM", 3),
+        ),
+        Register(
+            "soffs",
+            -10_000,
+            10_000,
+            0,
+            "s15, -10.000 .. 10.000 V in steps of 0.001",
+            tunable=False,
+            unit="mV",
+            doc="Control signal offset SOFFS added to the DAC output (PK-A5)",
+            source="A",
+            spelling=_command("SOFFS", 3),
+        ),
+        Register(
+            "smper",
+            0,
+            S32_MAX,
+            0,
+            "u31",
+            tunable=False,
+            unit="counts",
+            doc="Position error limit SMPER that shuts the drive down (PK-A7, PK-A8)",
+            source="A",
+            spelling=_command("SMPER", 0),
+        ),
+        # The default is the model's (Parker6kModel.default_ssfr).
+        Register(
+            "ssfr",
+            1,
+            8,
+            4,
+            "one of 1, 2, 4, 8",
+            tunable=False,
+            unit="ratio",
+            doc="Servo sampling frequency ratio SSFR: servo period 330, 185, 160, 150 us "
+            "(APEX615n guide's table)",
+            source="A",
+            spelling=_command("SSFR", 0),
+        ),
+    ],
+)
+"""Every flat register of the 6000-series family, in export and kernel order, with the
+command that sets it and that command's decimal places (docs/chips/parker6k.md)."""
 
-_AXIS_SPECS = [
-    ParamSpec(
-        "sgilim",
-        0,
-        10_000,
-        10_000,
-        "u14, 0 .. 10.000 V in steps of 0.001",
-        tunable=False,
-        unit="mV",
-        doc="Integral windup limit SGILIM: bound on the integral term (PK-A4)",
-        source="A",
-    ),
-    ParamSpec(
-        "soffs",
-        -10_000,
-        10_000,
-        0,
-        "s15, -10.000 .. 10.000 V in steps of 0.001",
-        tunable=False,
-        unit="mV",
-        doc="Control signal offset SOFFS added to the DAC output (PK-A5)",
-        source="A",
-    ),
-    ParamSpec(
-        "smper",
-        0,
-        S32_MAX,
-        0,
-        "u31",
-        tunable=False,
-        unit="counts",
-        doc="Position error limit SMPER that shuts the drive down (PK-A7, PK-A8)",
-        source="A",
-    ),
-]
+COMMANDS: dict[str, str] = {name: sp.text for name, sp in TABLE.spellings("6000").items()}
+"""The controller command that sets each register."""
 
-FIELDS: tuple[str, ...] = (*GAIN_FIELDS, "sgilim", "soffs", "smper", "ssfr")
+DECIMALS: dict[str, int] = {name: sp.code for name, sp in TABLE.spellings("6000").items()}
+"""Decimal places of each command's value: a register holds ``value * 10**DECIMALS``."""
+
+FIELDS: tuple[str, ...] = TABLE.names
 """Every flat register of a :class:`Parker6kParams`, in export order."""
 
 
@@ -316,22 +329,10 @@ def parameter_space(model: str | Parker6kModel) -> ParameterSpace:
     fields of :class:`Parker6kParams`, not registers of this space.
     """
     m = get_model(model)
-    ssfr = ParamSpec(
-        "ssfr",
-        1,
-        8,
-        m.default_ssfr,
-        "one of 1, 2, 4, 8",
-        tunable=False,
-        unit="ratio",
-        doc="Servo sampling frequency ratio SSFR: servo period 330, 185, 160, 150 us "
-        "(APEX615n guide's table)",
-        source="A",
-    )
-    return ParameterSpace(m.name, [*_GAIN_SPECS, *_AXIS_SPECS, ssfr])
+    return TABLE.space(m.name, {"ssfr": {"default": m.default_ssfr}})
 
 
-_GAIN_SPACE = {s.name: s for s in _GAIN_SPECS}
+_GAIN_SPACE = {name: TABLE[name].spec() for name in GAIN_FIELDS}
 
 
 def check_ssfr(value: int, context: str) -> int:
@@ -468,7 +469,7 @@ P_SWITCHES = P_N_SWITCHES + 1  # 37: ticks[n], then sets[n]
 
 
 @dataclasses.dataclass(frozen=True)
-class Parker6kParams:
+class Parker6kParams(RegisterSet):
     """A complete, legal parameter set for one servo axis of a 6000-series controller.
 
     Field names are the controller's command names. Gains are integers in steps of their
@@ -491,6 +492,13 @@ class Parker6kParams:
             1 .. len(sgset). From that tick on, the stored set's gains are in force.
     """
 
+    TABLE: ClassVar[RegisterTable] = TABLE
+    MODELS: ClassVar[Mapping[str, Parker6kModel]] = CHIP_MODELS
+    DEFAULT_MODEL: ClassVar[str] = "6250"
+    MODEL_DEFAULTS: ClassVar[tuple[str, ...]] = ("ssfr",)
+    _get_model = staticmethod(get_model)
+    _space_of = staticmethod(parameter_space)
+
     model: str = "6250"
     sgp: int = 8500
     sgi: int = 0
@@ -505,15 +513,7 @@ class Parker6kParams:
     sgenb: tuple[tuple[int, int], ...] = ()
 
     def __post_init__(self) -> None:
-        chip = get_model(self.model)
-        object.__setattr__(self, "model", chip.name)
-        if self.ssfr is None:
-            object.__setattr__(self, "ssfr", chip.default_ssfr)
-        space = parameter_space(chip)
-        for name in FIELDS:
-            object.__setattr__(
-                self, name, space[name].validate(getattr(self, name), context=chip.name)
-            )
+        chip, _space = self._check_registers()
         check_ssfr(self.ssfr, chip.name)
         sets = self.sgset
         if isinstance(sets, (str, bytes, Mapping)) or not isinstance(sets, Iterable):
@@ -532,16 +532,6 @@ class Parker6kParams:
         object.__setattr__(self, "sgenb", _check_schedule(self.sgenb, len(checked), chip.name))
 
     # --- views -------------------------------------------------------------------------
-
-    @property
-    def chip(self) -> Parker6kModel:
-        """The model record."""
-        return CHIP_MODELS[self.model]
-
-    @property
-    def space(self) -> ParameterSpace:
-        """The legal ranges of this set's flat registers."""
-        return parameter_space(self.model)
 
     @property
     def gains(self) -> GainSet:
@@ -622,10 +612,6 @@ class Parker6kParams:
         out["sgset"] = [s.to_dict() for s in self.sgset]
         out["sgenb"] = [[t, s] for t, s in self.sgenb]
         return out
-
-    def replace(self, **changes: Any) -> Parker6kParams:
-        """A copy with some fields changed (validated)."""
-        return dataclasses.replace(self, **changes)
 
     def enable(self, number: int) -> Parker6kParams:
         """What ``SGENB<number>`` does: a copy whose active gains are stored set ``number``.
