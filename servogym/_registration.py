@@ -30,6 +30,9 @@ ENV_CLASSES = {
 _ID_PARTS: dict[str, tuple[str, str, str]] = {}
 """Registered id -> (kind, chip family, plant family)."""
 
+_SCENARIO_IDS: set[str] = set()
+"""The registered ids of gain-scheduling scenarios (:data:`SCENARIOS`)."""
+
 
 def _build(kind: str, env_id: str | None, kwargs: dict):
     """The env of ``kind``, after refusing keywords that contradict ``env_id``'s chip
@@ -62,7 +65,11 @@ def _build(kind: str, env_id: str | None, kwargs: dict):
 
 
 def _id_for(kind: str, family: str, plant: str) -> str | None:
-    return next((i for i, parts in _ID_PARTS.items() if parts == (kind, family, plant)), None)
+    return next(
+        (i for i, parts in _ID_PARTS.items()
+         if parts == (kind, family, plant) and i not in _SCENARIO_IDS),
+        None,
+    )  # fmt: skip
 
 
 def make_tune_env(env_id: str | None = None, **kwargs):
@@ -120,11 +127,48 @@ def register(family: str, family_id: str, default_model: str, plant: str) -> lis
     return ids
 
 
+SCENARIOS: dict[str, tuple[str, str, str]] = {
+    "ArmPayload": ("pmd", "MC2100", "arm"),
+    "RotaryInertia": ("pmd", "MC2100", "rotary"),
+    "VerticalCoarseLead": ("pmd", "MC2100", "vertical-axis"),
+    "StoredSets": ("parker6k", "6250", "rotary"),
+}
+"""Gain-scheduling scenario name -> (chip family, chip model, plant family): the ids
+``servogym/Schedule-<Family>-<Name>-v0`` (:data:`servogym.envs.SCENARIOS` holds the rest;
+``tests/envs/test_registration.py`` checks the two agree)."""
+
+
+def register_scenario(name: str, family: str, family_id: str, model: str, plant: str) -> str:
+    """Register the Schedule id of one gain-scheduling scenario (idempotent); return it."""
+    import gymnasium as gym
+
+    eid = f"{NAMESPACE}/Schedule-{family_id}-{name}-v{VERSION}"
+    _ID_PARTS[eid] = ("Schedule", family, plant)
+    _SCENARIO_IDS.add(eid)
+    if eid not in gym.registry:
+        gym.register(
+            id=eid,
+            entry_point=ENTRY_POINTS["Schedule"],
+            kwargs={
+                "env_id": eid,
+                "chip_model": model,
+                "plant": plant,
+                "family": family,
+                "scenario_name": name,
+            },
+            disable_env_checker=False,
+        )
+    return eid
+
+
 def register_builtin() -> list[str]:
     """Register every built-in id; return them."""
-    return [
+    ids = [
         eid
         for family, (family_id, model) in BUILTIN_FAMILIES.items()
         for plant in BUILTIN_PLANTS
         for eid in register(family, family_id, model, plant)
     ]
+    for name, (family, model, plant) in SCENARIOS.items():
+        ids.append(register_scenario(name, family, BUILTIN_FAMILIES[family][0], model, plant))
+    return ids

@@ -18,7 +18,8 @@ class EpisodeOutcome:
 
     Attributes:
         seed: The seed given to ``reset``.
-        episode_return: Sum of the rewards (minus the summed costs).
+        episode_return: Sum of the unscaled rewards (minus the summed costs:
+            ``info["raw_reward"]``, whatever the env's ``reward_scale``).
         n_steps: Steps taken.
         diverged: Whether a step diverged.
         mean_cost: Mean per-step cost (``info["cost"]``).
@@ -71,7 +72,7 @@ def run_episodes(
         done = False
         while not done:
             obs, reward, terminated, truncated, info = env.step(policy(obs))
-            total += float(reward)
+            total += float(info.get("raw_reward", reward))
             n += 1
             diverged |= bool(info.get("diverged", False))
             costs.append(float(info.get("cost", -reward)))

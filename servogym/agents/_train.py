@@ -18,7 +18,8 @@ ALGOS = ("ppo", "sac", "td3")
 """Algorithms ``servogym train`` offers."""
 
 DEFAULT_REWARD_SCALE = 0.01
-"""Training rewards are multiplied by this (move costs ~0.01..1, divergence 10..20)."""
+"""The envs' default ``reward_scale`` (``servogym.envs.DEFAULT_REWARD_SCALE``, repeated here
+so that importing the agents stays light; a test checks the two agree)."""
 
 
 def _algo_class(algo: str):
@@ -34,14 +35,36 @@ def _algo_class(algo: str):
 def make_env(
     env_id: str,
     env_kwargs: Mapping[str, Any] | None = None,
-    reward_scale: float = 1.0,
+    reward_scale: float | None = None,
     residual: Mapping[str, Any] | None = None,
 ):
     """A function building one env (picklable, for subprocess vector envs).
 
-    ``residual`` (``{"center": [...], "scale": s}``) wraps it in :class:`ResidualAction`.
+    ``reward_scale`` is passed to the env as its ``reward_scale`` keyword (``None``: the
+    env's own, from ``env_kwargs`` or its default 0.01); the env scales its rewards, so
+    nothing is scaled twice. ``residual`` (``{"center": [...], "scale": s}``) wraps it in
+    :class:`ResidualAction`.
     """
-    return _EnvFactory(env_id, dict(env_kwargs or {}), reward_scale, residual)
+    kwargs = dict(env_kwargs or {})
+    if reward_scale is not None:
+        kwargs["reward_scale"] = reward_scale
+    return _EnvFactory(env_id, kwargs, residual)
+
+
+def effective_reward_scale(
+    env_kwargs: Mapping[str, Any] | None, reward_scale: float | None
+) -> float:
+    """The reward scale a run's envs use: ``reward_scale`` when given (it must agree with
+    ``env_kwargs["reward_scale"]`` if that is given too), else the env keyword, else
+    :data:`DEFAULT_REWARD_SCALE`."""
+    in_env = (env_kwargs or {}).get("reward_scale")
+    if reward_scale is not None and in_env is not None and in_env != reward_scale:
+        raise ValueError(
+            f"reward_scale={reward_scale!r} contradicts env_kwargs reward_scale={in_env!r}; "
+            "give it once (the env scales its rewards)."
+        )
+    scale = reward_scale if reward_scale is not None else in_env
+    return DEFAULT_REWARD_SCALE if scale is None else scale
 
 
 def residual_to_absolute(action: Any, residual: Mapping[str, Any]) -> Any:
@@ -78,10 +101,9 @@ class _EnvFactory:
         self,
         env_id: str,
         env_kwargs: dict[str, Any],
-        reward_scale: float,
         residual: Mapping[str, Any] | None = None,
     ) -> None:
-        self.env_id, self.env_kwargs, self.reward_scale = env_id, env_kwargs, reward_scale
+        self.env_id, self.env_kwargs = env_id, env_kwargs
         self.residual = None if residual is None else dict(residual)
 
     def __call__(self) -> gym.Env:
@@ -102,9 +124,6 @@ class _EnvFactory:
         env = Monitor(gym.make(self.env_id, **self.env_kwargs))
         if self.residual is not None:
             env = ResidualAction(env, self.residual["center"], self.residual["scale"])
-        if self.reward_scale != 1.0:
-            scale = self.reward_scale
-            env = gym.wrappers.TransformReward(env, lambda r: r * scale)
         return env
 
 
@@ -237,7 +256,7 @@ def train(
     n_envs: int = 2,
     env_kwargs: Mapping[str, Any] | None = None,
     algo_kwargs: Mapping[str, Any] | None = None,
-    reward_scale: float = DEFAULT_REWARD_SCALE,
+    reward_scale: float | None = None,
     residual: Mapping[str, Any] | None = None,
     checkpoint_every: int = 10_000,
     wall_time_s: float | None = None,
@@ -263,7 +282,9 @@ def train(
         n_envs: Envs stepped in parallel.
         env_kwargs: Keyword arguments of ``gymnasium.make``.
         algo_kwargs: Keyword arguments of the SB3 algorithm.
-        reward_scale: Training rewards are multiplied by it (evaluation reports raw ones).
+        reward_scale: The envs' ``reward_scale`` (they scale their own rewards; evaluation
+            reports raw ones); ``None``: ``env_kwargs["reward_scale"]``, else the envs'
+            default :data:`DEFAULT_REWARD_SCALE`.
         residual: ``{"center": [...], "scale": s}``: the agent acts around a fixed set
             (:class:`ResidualAction`); saved in ``config.json`` so :func:`load_policy` maps
             the model's actions back.
@@ -307,6 +328,7 @@ def train(
                 f"--resume: the run in {str(out)!r} has trained {trained} steps already, "
                 f"--timesteps {timesteps}; give --timesteps > {trained} to train further."
             )
+    scale = effective_reward_scale(env_kwargs, reward_scale)
     factories = [make_env(env_id, env_kwargs, reward_scale, residual) for _ in range(n_envs)]
     vec_cls = SubprocVecEnv if subprocess and n_envs > 1 else DummyVecEnv
     venv = vec_cls(factories)
@@ -330,7 +352,7 @@ def train(
         "n_envs": n_envs,
         "env_kwargs": dict(env_kwargs or {}),
         "algo_kwargs": dict(algo_kwargs or {}),
-        "reward_scale": reward_scale,
+        "reward_scale": scale,
         "residual": residual,
         "trained_timesteps": trained,
     }
@@ -497,7 +519,7 @@ def load_model(path: str | Path):
     kwargs = json.loads(json.dumps(dict(config.get("algo_kwargs") or {})))
     for key in ("learning_starts", "n_steps", "batch_size", "buffer_size"):
         kwargs.pop(key, None)  # training-only; keep the buffer small
-    env = make_env(env_id, config.get("env_kwargs"), 1.0, config.get("residual"))()
+    env = make_env(env_id, config.get("env_kwargs"), None, config.get("residual"))()
     try:
         model = (
             _algo_class(algo)("MlpPolicy", env, device="cpu", buffer_size=1, **kwargs)

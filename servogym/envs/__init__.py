@@ -26,10 +26,24 @@ import gymnasium as gym
 
 from servogym import _registration
 from servogym.chips._family import ChipFamily, families
-from servogym.envs._actions import ACTION_TYPES, ActionMap, RawActions, UnitActions
-from servogym.envs._common import action_table, default_model
+from servogym.envs._actions import (
+    ACTION_TYPES,
+    DEFAULT_RESIDUAL_SCALE,
+    ActionMap,
+    RawActions,
+    ResidualActions,
+    UnitActions,
+)
+from servogym.envs._common import DEFAULT_REWARD_SCALE, action_table, default_model
 from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP
-from servogym.envs._schedule import CYCLES, STATE_FEATURES, PickAndPlace, ScheduleEnv
+from servogym.envs._scenarios import SCENARIOS, ScheduleScenario, get_scenario
+from servogym.envs._schedule import (
+    CONDITION_FEATURES,
+    CYCLES,
+    STATE_FEATURES,
+    PickAndPlace,
+    ScheduleEnv,
+)
 from servogym.envs._schedule import observation_table as _schedule_obs_table
 from servogym.envs._tune import IDENT_SCALE, TuneEnv
 from servogym.envs._tune import observation_table as _tune_obs_table
@@ -57,7 +71,7 @@ def register_envs() -> list[str]:
     ``import servogym`` has already registered the built-in ones
     (:mod:`servogym._registration`); this adds any family or plant registered since.
     """
-    return [
+    ids = [
         eid
         for family in families().values()
         for plant in PLANTS
@@ -65,6 +79,14 @@ def register_envs() -> list[str]:
             family.name, family_id_name(family), default_model(family), plant
         )
     ]
+    for s in SCENARIOS.values():
+        fam = families()[s.family]
+        ids.append(
+            _registration.register_scenario(
+                s.name, s.family, family_id_name(fam), s.chip_model, s.plant
+            )
+        )
+    return ids
 
 
 def registered_ids() -> list[str]:
@@ -93,21 +115,28 @@ IDS = register_envs()
 
 __all__ = [
     "ACTION_TYPES",
+    "CONDITION_FEATURES",
     "CYCLES",
+    "DEFAULT_RESIDUAL_SCALE",
+    "DEFAULT_REWARD_SCALE",
     "IDENT_SCALE",
     "IDS",
     "MOVE_FEATURES",
     "NAMESPACE",
     "OBS_CLIP",
+    "SCENARIOS",
     "STATE_FEATURES",
     "ActionMap",
     "PickAndPlace",
     "RawActions",
+    "ResidualActions",
     "ScheduleEnv",
+    "ScheduleScenario",
     "TuneEnv",
     "UnitActions",
     "env_id",
     "family_id_name",
+    "get_scenario",
     "plant_id_name",
     "register_envs",
     "registered_ids",

@@ -234,8 +234,93 @@ class RawActions:
         return np.array([full[s.name] - s.low for s in self.specs], dtype=np.int64)
 
 
-ACTION_TYPES = {"unit": UnitActions, "raw": RawActions}
-"""Built-in action maps by name: ``"unit"`` (Box in [-1, 1]) and ``"raw"`` (MultiDiscrete)."""
+DEFAULT_RESIDUAL_SCALE = 0.25
+"""How far a residual action reaches from its centre, in unit-form units (see
+:class:`ResidualActions`)."""
+
+
+class ResidualActions:
+    """A Box in [-1, 1] around a safe set: unit form ``clip(center + scale * action, -1, 1)``.
+
+    The zero action is the ``center`` set (e.g. a robust fixed set that never diverges on the
+    scenario), so an agent whose policy starts near zero starts from a safe set, and learns
+    only where scheduling pays. ``scale`` bounds how far it reaches (0.25: a quarter of each
+    register's unit range, a factor of about 6 on a log-scaled 16-bit gain either way).
+
+    Args:
+        family: The chip family.
+        chip_model: The chip model.
+        params: Registers the action sets (as :class:`UnitActions`).
+        fixed: Registers held at a value.
+        center: Register values of the centre set; registers missing take the chip default
+            (or their ``fixed`` value).
+        scale: Reach in unit-form units, ``0 < scale <= 2``.
+    """
+
+    def __init__(
+        self,
+        family: ChipFamily,
+        chip_model: str,
+        params: tuple[str, ...] | None = None,
+        fixed: Mapping[str, Any] | None = None,
+        center: Mapping[str, Any] | None = None,
+        scale: float = DEFAULT_RESIDUAL_SCALE,
+    ) -> None:
+        if (
+            isinstance(scale, bool)
+            or not isinstance(scale, int | float)
+            or not (math.isfinite(scale) and 0 < scale <= 2)
+        ):
+            raise ValueError(
+                f"residual_scale must satisfy 0 < residual_scale <= 2 (unit-form units); got "
+                f"residual_scale={scale!r}."
+            )
+        if center is None:
+            raise ValueError(
+                "action_type='residual' needs center= (register values of a safe set, e.g. "
+                "{'kp': 34, 'kd': 107}); this chip family and plant have no default one."
+            )
+        self.unit = UnitActions(family, chip_model, params, fixed)
+        self.family, self.chip_model = family, chip_model
+        self.specs, self.fixed, self.names = self.unit.specs, self.unit.fixed, self.unit.names
+        self.space = self.unit.space
+        self.center = self.unit.from_values(center).astype(np.float64)
+        self.center_values = self.unit.to_values(self.center)
+        self.scale = float(scale)
+
+    def absolute(self, action: Any) -> np.ndarray:
+        """The unit-form action of the underlying :class:`UnitActions` (validated, clipped).
+
+        Raises:
+            ValueError: as :meth:`UnitActions.to_values` (shape, NaN, outside [-1, 1]).
+        """
+        a = self.unit._array(action)
+        for i, (spec, u) in enumerate(zip(self.specs, a, strict=True)):
+            if not (math.isfinite(u) and -1.0 <= u <= 1.0):
+                raise ValueError(
+                    f"action[{i}] ({spec.name}) must be a finite number in [-1, 1]; "
+                    f"got action[{i}]={u!r}."
+                )
+        return np.clip(self.center + self.scale * a, -1.0, 1.0)
+
+    def to_values(self, action: Any) -> dict[str, int]:
+        """Register values of ``action`` (see :meth:`absolute`)."""
+        return self.unit.to_values(self.absolute(action))
+
+    def to_params(self, action: Any) -> Any:
+        """The chip parameter set of ``action``."""
+        return _make(self.family, self.chip_model, self.to_values(action))
+
+    def from_values(self, values: Mapping[str, int]) -> np.ndarray:
+        """The action closest to ``values`` (clipped to the box: a set further than
+        ``scale`` from the centre is out of reach); raises as :meth:`UnitActions.from_values`."""
+        u = self.unit.from_values(values).astype(np.float64)
+        return np.clip((u - self.center) / self.scale, -1.0, 1.0).astype(np.float32)
+
+
+ACTION_TYPES = {"unit": UnitActions, "raw": RawActions, "residual": ResidualActions}
+"""Built-in action maps by name: ``"unit"`` (Box in [-1, 1]), ``"raw"`` (MultiDiscrete) and
+``"residual"`` (Box in [-1, 1] around a safe set, :class:`ResidualActions`)."""
 
 
 def make_action_map(
@@ -244,8 +329,14 @@ def make_action_map(
     chip_model: str,
     params: tuple[str, ...] | None,
     fixed: Mapping[str, Any] | None,
+    *,
+    center: Mapping[str, Any] | None = None,
+    residual_scale: float = DEFAULT_RESIDUAL_SCALE,
 ) -> Any:
-    """An action map by name, or ``action_type`` itself when it is already one."""
+    """An action map by name, or ``action_type`` itself when it is already one.
+
+    ``center`` and ``residual_scale`` are those of ``"residual"`` (:class:`ResidualActions`).
+    """
     if not isinstance(action_type, str):
         return action_type
     try:
@@ -255,6 +346,8 @@ def make_action_map(
             f"action_type must be one of {', '.join(map(repr, ACTION_TYPES))} or an action "
             f"map object; got action_type={action_type!r}."
         ) from None
+    if cls is ResidualActions:
+        return cls(family, chip_model, params, fixed, center, residual_scale)
     return cls(family, chip_model, params, fixed)
 
 

@@ -11,6 +11,29 @@ from servogym.chips._family import ChipFamily, get_chip
 from servogym.plants import get_plant
 from servogym.sim import Scenario
 
+DEFAULT_REWARD_SCALE = 0.01
+"""The envs' default ``reward_scale``: rewards are minus the cost times this, so a move's
+cost (about 0.01 .. 1 for a good set, 100 at the cap) gives rewards of order 0.0001 .. 1 and a
+divergence (1000 .. 2000) -10 .. -20, a range SB3's default learning rates and value
+networks handle. ``info["cost"]`` and ``info["raw_reward"]`` stay unscaled."""
+
+
+def check_reward_scale(reward_scale: Any) -> float:
+    """``reward_scale`` as a float; a ValueError unless it is a finite number > 0."""
+    import math
+
+    if (
+        isinstance(reward_scale, bool)
+        or not isinstance(reward_scale, int | float)
+        or not math.isfinite(reward_scale)
+        or reward_scale <= 0
+    ):
+        raise ValueError(
+            f"reward_scale must be a finite number > 0 (default {DEFAULT_REWARD_SCALE}); got "
+            f"reward_scale={reward_scale!r}."
+        )
+    return float(reward_scale)
+
 
 def default_model(family: ChipFamily) -> str:
     """The chip model an env id of ``family`` uses unless ``chip_model=`` says otherwise."""
@@ -25,12 +48,14 @@ def make_scenario(
     sample_scale: float,
     family: str | None = None,
     plant_range: Mapping[str, tuple[float, float]] | None = None,
+    moves: Sequence[Any] | None = None,
 ) -> Scenario:
     """The env's scenario: ``scenario`` itself, or one built from the other arguments.
 
     ``plant_range`` (``name -> (low, high)``) is the part of each parameter's legal range
     the episodes draw it from (``Scenario.plant_ranges``); validated like ``--plant-range``,
-    and refused in one line when an end is more than the motor can move.
+    and refused in one line when an end is more than the motor can move. ``moves``
+    (``servogym.sim.MoveSpec``s) replace the plant family's default moves.
     """
     if scenario is not None:
         if not isinstance(scenario, Scenario):
@@ -41,6 +66,8 @@ def make_scenario(
             raise ValueError(
                 "give plant_range or a scenario, not both (set Scenario.plant_ranges instead)"
             )
+        if moves:
+            raise ValueError("give moves or a scenario, not both (set Scenario.moves instead)")
         return scenario
     if chip_model is None:
         raise ValueError("give chip_model (e.g. 'MC2100') or a scenario")
@@ -61,6 +88,7 @@ def make_scenario(
         randomise=True,
         sample_scale=sample_scale,
         plant_ranges=ranges,
+        moves=tuple(moves or ()),
     )
 
 

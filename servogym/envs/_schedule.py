@@ -11,8 +11,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from servogym.envs._actions import make_action_map
+from servogym.envs._actions import DEFAULT_RESIDUAL_SCALE, make_action_map
 from servogym.envs._common import (
+    DEFAULT_REWARD_SCALE,
+    check_reward_scale,
     make_scenario,
     markdown_table,
     options_plant_values,
@@ -65,6 +67,22 @@ STATE_FEATURES: tuple[tuple[str, str, str], ...] = (
 """Features of the controller's state after the last-move features and before the last
 action: name, type (unit), meaning."""
 
+CONDITION_FEATURES: tuple[tuple[str, str, str], ...] = (
+    (
+        "load",
+        "float (1)",
+        "the scheduled parameter during the coming move, log-mapped onto [-1, 1] over empty "
+        ".. the part range's high end (the gripper knows what it holds)",
+    ),
+    (
+        "target",
+        "float (rad or m)",
+        "the coming move's target position in joint units (the arm's angle from horizontal)",
+    ),
+)
+"""The measured operating condition (``condition=True``, the scenario ids' default): after
+the state features, before the last action."""
+
 
 def cycle_for(plant: str) -> PickAndPlace:
     """The pick-and-place cycle of a plant family (:data:`CYCLES`, or its fallback)."""
@@ -92,7 +110,9 @@ class ScheduleEnv(gym.Env):
     registers (``params=``, ``fixed=``), or ``action_type="raw"`` (``MultiDiscrete``), or
     any action-map object with ``space``, ``names``, ``to_values``, ``to_params`` and
     ``from_values`` (``servogym.envs.ActionMap``; e.g. a discrete choice among a chip's
-    stored gain sets). Default registers of the PMD family (MC2100):
+    stored gain sets). ``action_type="residual"``: a Box in [-1, 1] whose zero is the safe set
+    ``center`` (:class:`~servogym.envs.ResidualActions`); ``"stored"``: the 6250 scenario's
+    ``Discrete(5)`` choice of a stored gain set. Default registers of the PMD family (MC2100):
 
     {action_table}
 
@@ -107,11 +127,17 @@ class ScheduleEnv(gym.Env):
 
     {observation_table}
 
+    With ``condition=True`` (the scenario ids' default) the measured operating condition,
+    :data:`CONDITION_FEATURES` (``load``, ``target``), comes before the last action:
+    ``Box(-10, 10, (12 + 4 + 2 + n,), float64)``.
+
     ## Rewards
 
-    Minus the move's cost (``servogym.sim.move_cost``, 0 .. 100, docs/cost.md). A move that
-    diverges ends the episode with reward ``-1000 * (2 - r)``, ``r`` the fraction of the
-    episode's moves that ran (the diverging one counted by the fraction of its ticks).
+    Minus the move's cost (``servogym.sim.move_cost``, 0 .. 100, docs/cost.md), times
+    ``reward_scale`` (default 0.01). A move that diverges ends the episode with the raw
+    reward ``-1000 * (2 - r)``, ``r`` the fraction of the episode's moves that ran (the
+    diverging one counted by the fraction of its ticks). ``info["raw_reward"]`` is the
+    reward before scaling, ``info["cost"]`` the move's cost.
 
     ## Starting State
 
@@ -138,12 +164,21 @@ class ScheduleEnv(gym.Env):
     | `cycle` | `CYCLES[plant]` | PickAndPlace | what changes between moves |
     | `params` | tunable registers | tuple[str] | registers the action sets |
     | `fixed` | `{}` | dict (int) | registers held at a value |
-    | `action_type` | `"unit"` | str or action map | `"unit"`, `"raw"` or an object |
+    | `action_type` | `"unit"` (scenarios: their own) | str or object | see Action Space |
     | `render_mode` | `None` | str | `"rgb_array"`: picture of the last move |
+    | `scenario_name` | from the id | str | a gain-scheduling scenario (``SCENARIOS``) |
+    | `moves` | the plant's | tuple[MoveSpec] | the moves (the first sets the positions' scale) |
+    | `condition` | `False` (scenarios: `True`) | bool | observe the load and the target |
+    | `reward_scale` | 0.01 | float (1) | rewards are minus the cost times this |
+    | `center` | the scenario's or nominal set | dict (int) | zero action of `"residual"` |
+    | `residual_scale` | 0.25 | float (1) | reach of a `"residual"` action (unit form) |
 
     ## Version History
 
-    * v0: Initial version.
+    * v0: Initial version; later, without changing the default behaviour of the plant ids:
+      ``reward_scale`` (default 0.01, the factor ``servogym train`` applied), the
+      ``"residual"`` and ``"stored"`` actions, ``condition``, ``moves``, the scenario ids,
+      and the refusal of a cycle the motor cannot move.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -162,9 +197,15 @@ class ScheduleEnv(gym.Env):
         cycle: PickAndPlace | None = None,
         params: tuple[str, ...] | None = None,
         fixed: Mapping[str, Any] | None = None,
-        action_type: str | Any = "unit",
+        action_type: str | Any | None = None,
         render_mode: str | None = None,
         family: str | None = None,
+        scenario_name: str | None = None,
+        moves: tuple[Any, ...] | None = None,
+        condition: bool | None = None,
+        reward_scale: float = DEFAULT_REWARD_SCALE,
+        center: Mapping[str, Any] | None = None,
+        residual_scale: float = DEFAULT_RESIDUAL_SCALE,
     ) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(
@@ -175,11 +216,34 @@ class ScheduleEnv(gym.Env):
             raise ValueError(f"n_moves must be an integer >= 1; got n_moves={n_moves!r}.")
         self.render_mode = render_mode
         self.n_moves = n_moves
+        self.reward_scale = check_reward_scale(reward_scale)
+        preset = None
+        if scenario_name is not None:
+            from servogym.envs._scenarios import get_scenario
+
+            preset = get_scenario(scenario_name)
+            if preset.plant != plant or (family is not None and preset.family != family):
+                raise ValueError(
+                    f"scenario_name={scenario_name!r} is a {preset.family} scenario on the "
+                    f"{preset.plant!r} plant; got plant={plant!r}, family={family!r}."
+                )
+            if scenario is None:
+                plant_values = {**preset.plant_values, **dict(plant_values or {})}
+                plant_range = dict(preset.plant_range) if plant_range is None else plant_range
+                moves = preset.moves if moves is None else moves
+            if cycle is None:
+                cycle = PickAndPlace(preset.param, preset.empty, preset.part)
+            condition = True if condition is None else condition
+            if action_type is None:
+                action_type = "stored" if preset.stored_sets else "residual"
+            center = dict(preset.center) if center is None else center
+        self.preset = preset
+        self.condition = bool(condition)
         from servogym.calibrate._plantfile import env_plant_values
 
         plant_values = env_plant_values(plant_file, plant, scenario, plant_values, plant_range)
         self.scenario = make_scenario(
-            chip_model, plant, scenario, plant_values, sample_scale, family, plant_range
+            chip_model, plant, scenario, plant_values, sample_scale, family, plant_range, moves
         )
         self.chip = self.scenario.chip
         self.plant_family = get_plant(self.scenario.plant)
@@ -191,6 +255,12 @@ class ScheduleEnv(gym.Env):
         default_part = self.scenario.plant_ranges.get(p.name, (p.sample_low, p.sample_high))
         part = self.cycle.part if self.cycle.part is not None else default_part
         self._part = (p.validate(part[0]), p.validate(part[1]))
+        if self._part[0] > self._part[1]:
+            raise ValueError(
+                f"the cycle's part range must have low <= high; got part={self._part!r} for "
+                f"{p.name}."
+            )
+        self.need = cycle_need(self.scenario, self.cycle.param, self._empty, self._part)
         self.defaults = self.scenario.default_params()
         self.plant = self.plant_family.build(self.scenario.draw_plant(np.random.default_rng(0)))
         self.loop = ServoLoop(
@@ -200,13 +270,23 @@ class ScheduleEnv(gym.Env):
             integrator=self.scenario.integrator,
             substeps=self.scenario.substeps,
         )
+        if action_type is None:
+            action_type = "unit"
+        if center is None and action_type == "residual":
+            from servogym.agents._baselines import nominal_set
+
+            center = nominal_set(self.chip.name, self.scenario.plant)
+        if action_type == "stored":
+            action_type = stored_set_actions(self.scenario.chip_model, preset)
         self.actions = make_action_map(
-            action_type, self.chip, self.scenario.chip_model, params, fixed
-        )
+            action_type, self.chip, self.scenario.chip_model, params, fixed,
+            center=center, residual_scale=residual_scale,
+        )  # fmt: skip
         self.action_space = self.actions.space
         self._space = self.chip.parameter_space(self.scenario.chip_model)
         self._n_move = len(MOVE_FEATURES)
-        n = self._n_move + len(STATE_FEATURES) + len(self.actions.names)
+        n_condition = len(CONDITION_FEATURES) if self.condition else 0
+        n = self._n_move + len(STATE_FEATURES) + n_condition + len(self.actions.names)
         self.observation_space = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(n,), dtype=np.float64)
         self._spec = self.scenario.moves[0]
         self._d_ref = abs(self._spec.distance)
@@ -235,6 +315,11 @@ class ScheduleEnv(gym.Env):
         else:
             prev, nxt, duration = self._targets[-1], 0.0, 0.0
         state = [nxt / self._d_ref, prev / self._d_ref, duration, k / self.n_moves]
+        if self.condition:
+            lo, hi = math.log(self._empty), math.log(max(self._part[1], self._empty))
+            load = self.part_value if k % 2 == 1 and k < self.n_moves else self._empty
+            t = (math.log(load) - lo) / (hi - lo) if hi > lo else 0.0
+            state += [2.0 * t - 1.0, prev + nxt]
         if values is None:
             last = np.zeros(len(self.actions.names))
         else:
@@ -285,11 +370,11 @@ class ScheduleEnv(gym.Env):
         info = self._info()
         if m.diverged:
             done = (k + m.n_ticks / profile.n_ticks) / self.n_moves
-            reward = -DIVERGENCE_PENALTY * (2.0 - done)
+            raw = -DIVERGENCE_PENALTY * (2.0 - done)
             terminated = True
             self._k = self.n_moves
         else:
-            reward = -move_cost(m, distance, self._spec.settle_s, self.scenario.weights)
+            raw = -move_cost(m, distance, self._spec.settle_s, self.scenario.weights)
             self._k = k + 1
             terminated = self._k >= self.n_moves
             if not terminated:
@@ -298,8 +383,8 @@ class ScheduleEnv(gym.Env):
                 self.plant.set_params({self.cycle.param: value}, keep_state=True)
         feats = move_features(r, profile, distance, self._spec.settle_s)
         obs = self._observation(feats, values)
-        info.update(cost=-reward, diverged=m.diverged, params=values)
-        return obs, float(reward), terminated, False, info
+        info.update(cost=-raw, raw_reward=raw, diverged=m.diverged, params=values)
+        return obs, float(raw * self.reward_scale), terminated, False, info
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -313,6 +398,45 @@ class ScheduleEnv(gym.Env):
         return response_rgb([(label, run)], title=title)
 
 
+def cycle_need(scenario: Scenario, param: str, empty: float, part: tuple[float, float]) -> Any:
+    """The worst motor need over a scheduling env's box (a :class:`~servogym.plants.Need`).
+
+    The box: ``param`` from ``min(empty, part low)`` to ``max(empty, part high)``, every
+    other parameter the env draws over its range (the scenario's ``plant_ranges``, else the
+    default sampling range at ``sample_scale``), the fixed ones as given.
+
+    Raises:
+        MotorFeasibilityError: when a corner needs more than the motor may give, naming it.
+    """
+    from servogym.plants import check_motor
+
+    family = get_plant(scenario.plant)
+    box = (
+        family.sample_bounds(scenario.sample_scale, ranges=scenario.plant_ranges)
+        if scenario.randomise
+        else dict(scenario.plant_ranges)
+    )
+    for name in scenario.plant_values:
+        box.pop(name, None)
+    box[param] = (min(empty, part[0]), max(empty, part[1]))
+    what = {param: "the cycle's empty value or part range"}
+    return check_motor(family, scenario.plant_values, box, scenario.moves, what=what)
+
+
+def stored_set_actions(chip_model: str, preset: Any) -> Any:
+    """The 6250's "which stored gain set" action over the scenario's stored sets."""
+    from servogym.chips.parker6k import GainSet, Parker6kParams, StoredSetActions
+
+    sets = tuple(getattr(preset, "stored_sets", ()) or ())
+    if not sets:
+        raise ValueError(
+            "action_type='stored' needs a scenario with stored gain sets "
+            "(scenario_name='StoredSets'), or pass StoredSetActions(params) as action_type."
+        )
+    params = Parker6kParams(model=chip_model, sgset=tuple(GainSet(**g) for g in sets))
+    return StoredSetActions(params)
+
+
 def _trapezoid_time(distance: float, v: float, a: float) -> float:
     """Duration of a trapezoidal (or triangular) move (s)."""
     if distance <= 0:
@@ -322,12 +446,16 @@ def _trapezoid_time(distance: float, v: float, a: float) -> float:
     return distance / v + v / a
 
 
-def observation_table() -> str:
-    """The observation table of the scheduling env, generated from the feature lists."""
+def observation_table(condition: bool = False) -> str:
+    """The observation table of the scheduling env, generated from the feature lists
+    (``condition``: with :data:`CONDITION_FEATURES`)."""
     rows = [(i, f"`last_{n}`", doc, t) for i, (n, t, doc) in enumerate(MOVE_FEATURES)]
     base = len(rows)
     rows += [(base + i, f"`{n}`", doc, t) for i, (n, t, doc) in enumerate(STATE_FEATURES)]
     base = len(rows)
+    if condition:
+        rows += [(base + i, f"`{n}`", d, t) for i, (n, t, d) in enumerate(CONDITION_FEATURES)]
+        base = len(rows)
     rows.append(
         (
             f"{base} .. {base} + n - 1",

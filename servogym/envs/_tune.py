@@ -10,7 +10,13 @@ import numpy as np
 from gymnasium import spaces
 
 from servogym.envs._actions import make_action_map
-from servogym.envs._common import make_scenario, markdown_table, options_plant_values
+from servogym.envs._common import (
+    DEFAULT_REWARD_SCALE,
+    check_reward_scale,
+    make_scenario,
+    markdown_table,
+    options_plant_values,
+)
 from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP, move_features, plant_features
 from servogym.plants import get_plant
 from servogym.sim import Evaluator, MoveSpec, Scenario
@@ -59,9 +65,11 @@ class TuneEnv(gym.Env):
 
     ## Rewards
 
-    Minus the scenario's cost of the parameter set on this plant instance (docs/cost.md):
-    the mean move cost (0 .. 100) when no move diverged, ``-1000 * (2 - r)`` when one did
-    (``r``: fraction of the evaluation's ticks that ran). Always finite.
+    Minus the scenario's cost of the parameter set on this plant instance (docs/cost.md),
+    times ``reward_scale`` (default 0.01): the mean move cost (0 .. 100) when no move
+    diverged, ``-1000 * (2 - r)`` when one did (``r``: fraction of the evaluation's ticks that
+    ran). Always finite. ``info["cost"]`` is the cost and ``info["raw_reward"]`` the reward
+    before scaling.
 
     ## Starting State
 
@@ -91,10 +99,12 @@ class TuneEnv(gym.Env):
     | `privileged` | `False` | bool | also observe the hidden plant parameters |
     | `ident_params` | chip defaults | dict (int) | registers of the identification move |
     | `render_mode` | `None` | str | `"rgb_array"`: picture of the last response |
+    | `reward_scale` | 0.01 | float (1) | rewards are minus the cost times this |
 
     ## Version History
 
-    * v0: Initial version.
+    * v0: Initial version; ``reward_scale`` (default 0.01, the factor ``servogym train``
+      applied) added later, ``info["raw_reward"]`` keeps the unscaled reward.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 1}
@@ -116,6 +126,7 @@ class TuneEnv(gym.Env):
         ident_params: Mapping[str, int] | None = None,
         render_mode: str | None = None,
         family: str | None = None,
+        reward_scale: float = DEFAULT_REWARD_SCALE,
     ) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(
@@ -123,6 +134,7 @@ class TuneEnv(gym.Env):
                 f"got render_mode={render_mode!r}."
             )
         self.render_mode = render_mode
+        self.reward_scale = check_reward_scale(reward_scale)
         from servogym.calibrate._plantfile import env_plant_values
 
         plant_values = env_plant_values(plant_file, plant, scenario, plant_values, plant_range)
@@ -192,13 +204,14 @@ class TuneEnv(gym.Env):
         obs = np.zeros(self.observation_space.shape)
         info = {
             "cost": ev.cost,
+            "raw_reward": -float(ev.cost),
             "diverged": ev.diverged,
             "params": values,
             "max_following_error": ev.max_following_error,
             "saturation_fraction": ev.saturation_fraction,
             "plant_values": dict(self._plant_values),
         }
-        return obs, -float(ev.cost), True, False, info
+        return obs, -float(ev.cost) * self.reward_scale, True, False, info
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":

@@ -47,7 +47,7 @@ def test_import_servogym_registers_every_id_without_loading_the_simulator():
     )
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["ids"] == envs.registered_ids()
-    assert len(got["ids"]) == 2 * len(families()) * len(PLANTS)
+    assert len(got["ids"]) == 2 * len(families()) * len(PLANTS) + len(envs.SCENARIOS)
     assert got["heavy"] == []  # no numba, MuJoCo, torch, Optuna until an env is made
     assert got["shape"] == [12]  # the Tune observation (docs/envs.md)
     assert got["s"] < 5.0

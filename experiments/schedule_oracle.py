@@ -1,0 +1,289 @@
+"""The oracle gap of every gain-scheduling scenario: how much one fixed set gives away.
+
+    nice -n 10 .venv/bin/python experiments/schedule_oracle.py --budget 150      # the study
+    nice -n 10 .venv/bin/python experiments/schedule_oracle.py --budget 30 --robust 4 \\
+        --episodes 10 --label smoke                                             # a smoke run
+
+For each scenario of ``servogym.envs.SCENARIOS`` (``--scenarios`` picks some):
+
+1. K operating points (``--points``, default 4): the scheduled parameter log-spaced from the
+   empty value to the part range's high end, the other parameters nominal, the scenario's
+   fixed values and moves;
+2. per point, a set tuned there (``servogym tune``'s machinery: the model-based design start,
+   ``--tuner`` over ``--budget`` evaluations with the margin and saturation constraints, then
+   ``check_candidates``: the best trial that passes ``servogym check``);
+3. a robust set: tuned over ``--robust`` plant draws from the scenario's whole distribution
+   (the scheduled parameter over empty .. part high, the other drawn parameters over the
+   scenario's ranges), mean cost, checked on those draws too;
+4. every set cross-evaluated on every point (the accurate RK4 loop, ``Evaluator``);
+5. ``--episodes`` seeded Schedule-env episodes of the robust set, the best fixed set and the
+   gain table (before each move the set of the operating point nearest the measured
+   condition, in log scale: what a controller with stored gain sets does).
+
+The oracle gap is ``best fixed mean cost / oracle mean cost`` over the points: the best fixed
+set is the candidate (robust or any point's set) with the lowest mean cost over the points,
+the oracle uses each point's own set there. A set that diverges at a point costs the
+divergence penalty there (1000 .. 2000), so it is never the best fixed set.
+
+Resumable: every finished set is one JSON line in ``--out``
+(``experiments/results/schedule/oracle.jsonl``), keyed by (scenario, point, budget, label);
+a re-run skips what is there. The summary (``oracle_summary.json`` next to it) is rebuilt
+from the lines at the end of every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+RESULTS = Path(__file__).parent / "results" / "schedule"
+
+
+def _parse() -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenarios", default=None, help="comma-separated names (default: all)")
+    ap.add_argument("--points", type=int, default=4, help="operating points K (>= 2)")
+    ap.add_argument("--budget", type=int, default=150, help="evaluations per tuned set")
+    ap.add_argument("--robust", type=int, default=8, help="plant draws of the robust set")
+    ap.add_argument("--tuner", default="tpe")
+    ap.add_argument("--episodes", type=int, default=100, help="Schedule-env episodes per policy")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=1, help="evaluation threads per study")
+    ap.add_argument("--label", default="full", help="a name stored with every line (smoke)")
+    ap.add_argument("--out", type=Path, default=RESULTS / "oracle.jsonl")
+    args = ap.parse_args()
+    for name in ("points", "budget", "robust", "episodes", "workers"):
+        low = 2 if name == "points" else 1
+        if getattr(args, name) < low:
+            raise SystemExit(f"--{name} must be >= {low}; got --{name} {getattr(args, name)}.")
+    return args
+
+
+def _done(path: Path) -> dict[tuple, dict[str, Any]]:
+    out: dict[tuple, dict[str, Any]] = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            if not line.strip():
+                continue
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # a line torn by a kill: that set is tuned again
+            out[_key(rec)] = rec
+    return out
+
+
+def _key(rec: dict[str, Any]) -> tuple:
+    return (rec["kind"], rec["scenario"], str(rec["point"]), rec["budget"], rec["label"],
+            rec["points"])  # fmt: skip
+
+
+def _append(path: Path, rec: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as f:
+        f.write(json.dumps(rec) + "\n")
+
+
+def _config(s, args, point: float | None):
+    from servogym.autotune._job import TuneConfig
+
+    search = None
+    if s.family == "parker6k":
+        from servogym.chips.parker6k import GAIN_FIELDS
+
+        search = tuple(GAIN_FIELDS)  # what a stored set holds
+    if point is None:
+        ranges = {s.param: (s.empty, s.part[1]), **dict(s.plant_range)}
+        return TuneConfig(chip=s.chip_model, plant=s.plant, out=Path("unused"),
+                          budget=args.budget, tuner=args.tuner, plant_params=dict(s.plant_values),
+                          plant_ranges=ranges, seed=args.seed, workers=args.workers,
+                          robust=args.robust, moves=s.all_moves, search=search)  # fmt: skip
+    values = {**dict(s.plant_values), s.param: point}
+    return TuneConfig(chip=s.chip_model, plant=s.plant, out=Path("unused"), budget=args.budget,
+                      tuner=args.tuner, plant_params=values, seed=args.seed,
+                      workers=args.workers, moves=s.all_moves, search=search)  # fmt: skip
+
+
+def tune_set(s, args, point: float | None) -> dict[str, Any]:
+    """Tune and check one set (``point=None``: the robust one); return its record part."""
+    from servogym.autotune._job import check_candidates, design_start, run_study
+
+    config = _config(s, args, point)
+    problem = config.problem()
+    t0 = time.perf_counter()
+    design = design_start(problem, config)
+    result = run_study(problem, config.tuner, config.budget, storage=None,
+                       n_workers=config.workers, warm_start=design.get("values"))  # fmt: skip
+    result, report = check_candidates(result, config)
+    return {
+        "values": {k: int(v) for k, v in result.best_values.items()},
+        "tuned_cost": float(result.best.values[0]),
+        "feasible": bool(result.feasible),
+        "check_passed": bool(report.passed),
+        "check_failures": list(report.failures)[:6],
+        "elapsed_s": time.perf_counter() - t0,
+    }
+
+
+def cross_costs(s, values: dict[str, int], points: list[float]) -> list[float]:
+    """The set's cost at every operating point (nominal otherwise; the RK4 loop)."""
+    from servogym.sim import Evaluator, Scenario
+
+    costs = []
+    for v in points:
+        sc = Scenario(s.chip_model, s.plant, {**dict(s.plant_values), s.param: v},
+                      moves=s.all_moves)  # fmt: skip
+        ev = Evaluator(sc)
+        costs.append(float(ev.evaluate(sc.params(values)).cost))
+    return costs
+
+
+def episodes(s, policies: dict[str, Any], n: int, seed: int) -> dict[str, dict[str, float]]:
+    """Mean per-move cost of each policy on ``n`` seeded Schedule-env episodes (the same
+    seeds for all). A policy is a register-value dict (fixed) or a list of
+    (operating point, values) (the gain table: nearest point to the coming move's load)."""
+    import gymnasium as gym
+
+    import servogym  # noqa: F401
+
+    eid = _scenario_id(s)
+    env = gym.make(eid, action_type="unit", reward_scale=1.0)
+    u = env.unwrapped
+    out = {}
+    for name, pol in policies.items():
+        costs, diverged = [], 0
+        for ep in range(n):
+            env.reset(seed=seed + 100_000 + ep)
+            done = False
+            ep_costs = []
+            while not done:
+                k = u._k
+                load = u.part_value if k % 2 == 1 else u._empty
+                if isinstance(pol, list):
+                    values = min(pol, key=lambda pv: abs(math.log(pv[0] / load)))[1]
+                else:
+                    values = pol
+                _, _, done, _, info = env.step(u.actions.from_values(values))
+                ep_costs.append(float(info["cost"]))
+                diverged += bool(info["diverged"])
+            costs.append(float(np.mean(ep_costs)))
+        out[name] = {"mean_cost": float(np.mean(costs)),
+                     "sem": float(np.std(costs, ddof=1) / math.sqrt(n)) if n > 1 else 0.0,
+                     "diverged_episodes": diverged, "episodes": n}  # fmt: skip
+    env.close()
+    return out
+
+
+def _scenario_id(s) -> str:
+    from servogym._registration import BUILTIN_FAMILIES
+
+    return f"servogym/Schedule-{BUILTIN_FAMILIES[s.family][0]}-{s.name}-v0"
+
+
+def summarize(records: list[dict[str, Any]], s, points: list[float], label: str,
+              budget: int) -> dict[str, Any] | None:  # fmt: skip
+    sets = {str(r["point"]): r for r in records
+            if r["kind"] == "set" and r["scenario"] == s.name and r["label"] == label
+            and r["budget"] == budget and r["points"] == len(points)}  # fmt: skip
+    need = [str(i) for i in range(len(points))] + ["robust"]
+    if any(k not in sets for k in need):
+        return None
+    k = len(points)
+    oracle = [sets[str(i)]["cross"][i] for i in range(k)]
+    means = {name: float(np.mean(sets[name]["cross"])) for name in need}
+    best = min(means, key=means.get)
+    oracle_mean = float(np.mean(oracle))
+    best_cross = sets[best]["cross"]
+    return {
+        "scenario": s.name,
+        "env_id": _scenario_id(s),
+        "label": label,
+        "budget": budget,
+        "param": s.param,
+        "points": points,
+        "oracle_costs": oracle,
+        "oracle_mean_cost": oracle_mean,
+        "robust_costs": sets["robust"]["cross"],
+        "robust_mean_cost": means["robust"],
+        "best_fixed": best,
+        "best_fixed_costs": best_cross,
+        "best_fixed_mean_cost": means[best],
+        "oracle_gap": means[best] / oracle_mean,
+        "oracle_gap_worst_point": max(b / o for b, o in zip(best_cross, oracle, strict=True)),
+        "checks_passed": {name: sets[name]["check_passed"] for name in need},
+        "sets_passing_everywhere": [
+            name for name in need if sets[name]["check_passed"] and max(sets[name]["cross"]) < 1000
+        ],
+    }
+
+
+def main() -> None:
+    args = _parse()
+    from servogym.envs._scenarios import SCENARIOS, get_scenario
+
+    names = args.scenarios.split(",") if args.scenarios else list(SCENARIOS)
+    scenarios = [get_scenario(n.strip()) for n in names]
+    done = _done(args.out)
+    summary_path = args.out.with_name(args.out.stem + "_summary.json")
+    summaries = []
+    for s in scenarios:
+        points = s.operating_points(args.points)
+        base = {"scenario": s.name, "budget": args.budget, "label": args.label,
+                "points": args.points}  # fmt: skip
+        for i, v in [*enumerate(points), ("robust", None)]:
+            rec = {"kind": "set", "point": i, **base}
+            if _key(rec) in done:
+                continue
+            t0 = time.perf_counter()
+            rec |= {"value": v, "tuner": args.tuner, "robust": args.robust, "seed": args.seed}
+            rec |= tune_set(s, args, v)
+            rec["cross"] = cross_costs(s, rec["values"], points)
+            rec["elapsed_s"] = time.perf_counter() - t0
+            _append(args.out, rec)
+            done[_key(rec)] = rec
+            print(f"{s.name} set {i}: tuned {rec['tuned_cost']:.4g}, check "
+                  f"{'passed' if rec['check_passed'] else 'FAILED'}, cross "
+                  f"{[round(c, 3) for c in rec['cross']]} ({rec['elapsed_s']:.0f} s)",
+                  flush=True)  # fmt: skip
+        summary = summarize(list(done.values()), s, points, args.label, args.budget)
+        if summary is None:
+            continue
+        ep = {"kind": "episodes", "point": "all", **base}
+        if _key(ep) not in done:
+            sets = {str(r["point"]): r for r in done.values() if r["kind"] == "set"
+                    and all(r[k] == v for k, v in base.items())}  # fmt: skip
+            table = [(points[i], sets[str(i)]["values"]) for i in range(len(points))]
+            policies = {"robust": sets["robust"]["values"],
+                        "best_fixed": sets[summary["best_fixed"]]["values"],
+                        "gain_table": table}  # fmt: skip
+            ep["results"] = episodes(s, policies, args.episodes, args.seed)
+            _append(args.out, ep)
+            done[_key(ep)] = ep
+        summary["episodes"] = done[_key(ep)]["results"]
+        summary["command"] = (
+            f"nice -n 10 .venv/bin/python experiments/schedule_oracle.py --scenarios {s.name} "
+            + " ".join(f"--{k} {getattr(args, k)}"
+                       for k in ("points", "budget", "robust", "episodes", "seed", "label"))
+        )  # fmt: skip
+        summaries.append(summary)
+        print(f"{s.name}: oracle gap {summary['oracle_gap']:.3g} (best fixed "
+              f"{summary['best_fixed']} {summary['best_fixed_mean_cost']:.4g} / oracle "
+              f"{summary['oracle_mean_cost']:.4g}); episodes "
+              f"{ {k: round(v['mean_cost'], 4) for k, v in summary['episodes'].items()} }",
+              flush=True)  # fmt: skip
+    old = json.loads(summary_path.read_text()) if summary_path.exists() else {"scenarios": []}
+    keep = [o for o in old.get("scenarios", [])
+            if (o["scenario"], o["label"], o["budget"]) not in
+            {(x["scenario"], x["label"], x["budget"]) for x in summaries}]  # fmt: skip
+    summary_path.write_text(json.dumps({"scenarios": keep + summaries}, indent=1) + "\n")
+    print(f"wrote {summary_path}")
+
+
+if __name__ == "__main__":
+    main()
