@@ -240,7 +240,7 @@ def test_import_refuses_disagreements_and_forms():
         from_command_file(text, "6k", model="6250")
     with pytest.raises(ParameterError, match=r"axis=1 disagrees with the header's 'axis: 2'"):
         from_command_file(text, "6k", axis=1)
-    with pytest.raises(ParameterError, match=r"names no model"):
+    with pytest.raises(ParameterError, match=r"command file names no chip model"):
         from_command_file(VALID, "6250")
     with pytest.raises(ParameterError, match=r"the 6250 takes comma-separated axis fields"):
         from_command_file(VALID, "6k", model="6250")

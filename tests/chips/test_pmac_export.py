@@ -337,7 +337,9 @@ def test_ivar_import_refusals(text, match):
 
 def test_ivar_import_model_disagreement_and_duplicates_that_agree():
     text = to_ivar(PMACParams(model="GeoBrickLV"))
-    with pytest.raises(ParameterError, match="disagrees with the file's header"):
+    with pytest.raises(
+        ParameterError, match=r"disagrees with the header's 'chip_model: GeoBrickLV' \(I-variable"
+    ):
         from_ivar(text, "TurboPMAC2")
     with pytest.raises(ParameterError, match=r"end line .* is not the last line"):
         from_ivar(text + "I130=2000\n")

@@ -24,10 +24,10 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
 from servogym import __version__
 from servogym._files import seal, unseal
+from servogym.chips._formats import Formats, check_index, resolve_model
+from servogym.chips._formats import read_header as read_header_lines
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
@@ -35,7 +35,6 @@ from servogym.chips._paramfile import (
     FileSchema,
     ParamFile,
     assumption_lines,
-    check_format,
 )
 from servogym.chips._space import ParameterError
 from servogym.chips.parker6k._params import (
@@ -91,22 +90,11 @@ _KNOWN = (*COMMANDS.values(), "SGSET", "SGENB")
 
 
 def _check_axis(chip: Parker6kModel, axis: Any, where: str = "") -> int:
-    at = f"{where}: " if where else ""
-    if isinstance(axis, bool) or not isinstance(axis, int | np.integer):
-        raise ParameterError(
-            f"{at}axis must be an integer with 1 <= axis <= {chip.n_axes} ({chip.name}); "
-            f"got axis={axis!r} of type {type(axis).__name__}."
-        )
-    if not 1 <= axis <= chip.n_axes:
-        raise ParameterError(
-            f"{at}axis must satisfy 1 <= axis <= {chip.n_axes} ({chip.name} has "
-            f"{chip.n_axes} axes); got axis={int(axis)}."
-        )
-    return int(axis)
+    return check_index(chip, axis, chip.n_axes, where=where)
 
 
 def _check_format(fmt: Any) -> str:
-    return check_format(fmt, FILE_EXTENSIONS, ignore_case=True)
+    return FORMAT_TABLE.check(fmt)
 
 
 def _check_form(chip: Parker6kModel, fmt: str) -> None:
@@ -163,8 +151,6 @@ def parse_decimal(text: str, register: str) -> int:
 # Provenance header (comment lines)
 # --------------------------------------------------------------------------------------
 
-_HEADER_KEY = re.compile(r"^\s*([a-z_]+)\s*:\s*(\S.*?)\s*$")
-_HEADER_ASSUMPTION = re.compile(r"^\s*assumption\s+PK-A\d+\s+([a-z_]+)\s*:\s*(\S+)\s*$")
 _HEADER_SWITCH = re.compile(r"^\s*sgenb\s+tick\s*=\s*(\S+)\s+set\s*=\s*(\S+)\s*$")
 
 
@@ -189,25 +175,9 @@ def read_header(text: str) -> dict[str, Any]:
     Raises:
         ParameterError: if the header lists only some assumptions, or an unknown one.
     """
-    fields: dict[str, Any] = {}
-    assumed: dict[str, str] = {}
-    switches: list[tuple[int, str, str]] = []
-    for n, _code, comment in _split(text):
-        if not comment:
-            continue
-        m = _HEADER_ASSUMPTION.match(comment)
-        if m:
-            assumed.setdefault(m.group(1), m.group(2))
-            continue
-        m = _HEADER_SWITCH.match(comment)
-        if m:
-            switches.append((n, m.group(1), m.group(2)))
-            continue
-        m = _HEADER_KEY.match(comment)
-        if m:
-            fields.setdefault(m.group(1), m.group(2))
-    if assumed:
-        fields["assumptions"] = _SCHEMA.complete_assumptions(assumed, "the header")
+    lines = [(n, comment) for n, _code, comment in _split(text) if comment]
+    fields = read_header_lines((c for _n, c in lines), _SCHEMA, "PK")
+    switches = [(n, *m.groups()) for n, c in lines if (m := _HEADER_SWITCH.match(c))]
     if switches:
         fields["sgenb"] = switches
     return fields
@@ -488,21 +458,7 @@ def from_command_file(
 
 
 def _resolve_model(model: str | Parker6kModel | None, header: Mapping[str, Any]) -> Parker6kModel:
-    named = header.get("chip_model")
-    if model is None:
-        if named is None:
-            raise ParameterError(
-                "the command file names no model (no '; chip_model:' header line); pass "
-                f"model=, one of {', '.join(CHIP_MODELS)}."
-            )
-        return get_model(named)
-    chip = get_model(model)
-    if named is not None and get_model(named).name != chip.name:
-        raise ParameterError(
-            f"model={chip.name!r} disagrees with the header's 'chip_model: {named}'; pass "
-            f"model={named!r}, or model=None to use the header."
-        )
-    return chip
+    return resolve_model(model, header, get_model, CHIP_MODELS, "command file")
 
 
 # --------------------------------------------------------------------------------------
@@ -535,44 +491,25 @@ to_json, from_json = _SCHEMA.json_functions(__name__)
 # --------------------------------------------------------------------------------------
 
 
-def export(params: Parker6kParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
-    """Export a parameter set in one of :data:`FORMATS`.
+FORMAT_TABLE = Formats(
+    _SCHEMA,
+    FILE_EXTENSIONS,
+    writers={
+        form: lambda params, form=form, **kw: to_command_file(params, form, **kw)
+        for form in ("6250", "6k")
+    },
+    readers={
+        form: lambda text, model, axis=None, form=form: from_command_file(text, form, model, axis)
+        for form in ("6250", "6k")
+    },
+    ignore_case=True,
+)
 
-    Args:
-        params: The parameter set; validated again first.
-        fmt: ``"json"`` (:func:`to_json`), ``"6250"`` or ``"6k"`` (:func:`to_command_file`).
-        **kw: Passed on: ``assumptions`` to every format; ``axis`` to the command files (a
-            JSON file holds one axis' set and ignores ``axis``); ``metrics``, ``notes``,
-            ``created`` to JSON.
-
-    Returns:
-        The exported text; :data:`FILE_EXTENSIONS` suggests a file extension.
-    """
-    fmt = _check_format(fmt)
-    if fmt == "json":
-        kw.pop("axis", None)
-        return to_json(params, **kw)
-    return to_command_file(params, fmt, **kw)
-
-
-def import_params(
-    text: str,
-    fmt: str,
-    model: str | Parker6kModel | None = None,
-    axis: int | None = None,
-) -> Parker6kParams:
-    """Import a parameter set exported in one of :data:`FORMATS`.
-
-    Args:
-        text: The exported text.
-        fmt: ``"json"``, ``"6250"`` or ``"6k"``.
-        model: Default the model the text names; if both are given they must agree.
-        axis: Command files only: the axis to read (default the header's, else 1).
-
-    Returns:
-        The parameter set (for the provenance of a JSON file use :func:`from_json`).
-    """
-    fmt = _check_format(fmt)
-    if fmt == "json":
-        return _SCHEMA.read_params(text, model)
-    return from_command_file(text, fmt, model, axis)
+export, import_params = FORMAT_TABLE.functions(
+    __name__,
+    "Parker6kParams",
+    '``"json"`` (:func:`to_json`), ``"6250"`` or ``"6k"`` (:func:`to_command_file`)',
+    "``assumptions`` to every format; ``axis`` to the command files (a JSON file holds one "
+    "axis' set and ignores ``axis``); ``metrics``, ``notes``, ``created`` to JSON.",
+    index_doc="``axis``, command files only: the axis to read (default the header's, else 1).",
+)

@@ -22,10 +22,10 @@ from collections.abc import Mapping
 from fractions import Fraction
 from typing import Any
 
-import numpy as np
-
 from servogym import __version__
 from servogym._files import seal, unseal
+from servogym.chips._formats import Formats, check_index, resolve_model
+from servogym.chips._formats import read_header as read_header_lines
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
@@ -33,7 +33,6 @@ from servogym.chips._paramfile import (
     FileSchema,
     ParamFile,
     assumption_lines,
-    check_format,
 )
 from servogym.chips._space import ParameterError
 from servogym.chips.pmac._params import (
@@ -82,18 +81,7 @@ CHIP_FAMILY = "pmac"
 
 
 def _check_motor(chip: PMACChipModel, motor: Any, where: str = "") -> int:
-    at = f"{where}: " if where else ""
-    if isinstance(motor, bool) or not isinstance(motor, int | np.integer):
-        raise ParameterError(
-            f"{at}motor must be an integer with 1 <= motor <= {chip.n_motors} ({chip.name}); "
-            f"got motor={motor!r} of type {type(motor).__name__}."
-        )
-    if not 1 <= motor <= chip.n_motors:
-        raise ParameterError(
-            f"{at}motor must satisfy 1 <= motor <= {chip.n_motors} ({chip.name} addresses "
-            f"{chip.n_motors} motors); got motor={int(motor)}."
-        )
-    return int(motor)
+    return check_index(chip, motor, chip.n_motors, noun="motor", verb="addresses", where=where)
 
 
 # --------------------------------------------------------------------------------------
@@ -192,10 +180,6 @@ def to_ivar(
     return seal("\n".join(out) + "\n", ";")
 
 
-_HEADER_KEY = re.compile(r"^\s*;+\s*([a-z_]+)\s*:\s*(\S.*?)\s*$")
-_HEADER_ASSUMPTION = re.compile(r"^\s*;+\s*assumption\s+PMAC-A\d+\s+([a-z_]+)\s*:\s*(\S+)\s*$")
-
-
 def read_header(text: str) -> dict[str, Any]:
     """The provenance header of an I-variable file (``; key: value`` comment lines).
 
@@ -207,19 +191,7 @@ def read_header(text: str) -> dict[str, Any]:
     Raises:
         ParameterError: if the header lists only some assumptions, or an unknown one.
     """
-    fields: dict[str, Any] = {}
-    assumed: dict[str, str] = {}
-    for line in text.splitlines():
-        m = _HEADER_ASSUMPTION.match(line)
-        if m:
-            assumed.setdefault(m.group(1), m.group(2))
-            continue
-        m = _HEADER_KEY.match(line)
-        if m:
-            fields.setdefault(m.group(1), m.group(2))
-    if assumed:
-        fields["assumptions"] = _SCHEMA.complete_assumptions(assumed, "the header")
-    return fields
+    return read_header_lines(text.splitlines(), _SCHEMA, "PMAC", lead=r"\s*;+\s*")
 
 
 # An assignment to one I-variable or a range of them (``I130..139=0``); the value runs to
@@ -326,21 +298,7 @@ def from_ivar(
     original = text
     text, _sealed = unseal(text, verify=False)
     header = read_header(text)
-    named = header.get("chip_model")
-    if model is None:
-        if named is None:
-            raise ParameterError(
-                f"the I-variable file names no chip model (no '; chip_model:' header); pass "
-                f"model=, one of {', '.join(CHIP_MODELS)}."
-            )
-        chip = get_model(named)
-    else:
-        chip = get_model(model)
-        if named is not None and get_model(named).name != chip.name:
-            raise ParameterError(
-                f"model={chip.name!r} disagrees with the file's header 'chip_model: {named}'; "
-                f"pass model={named!r}, or model=None to use the header."
-            )
+    chip = resolve_model(model, header, get_model, CHIP_MODELS, "I-variable file")
 
     assignments: list[tuple[int, int | None, str, str]] = []
     in_buffer = False
@@ -414,32 +372,8 @@ def from_ivar(
 # --------------------------------------------------------------------------------------
 
 
-def _check_format(fmt: Any) -> str:
-    return check_format(fmt, FILE_EXTENSIONS)
-
-
-def export(params: PMACParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
-    """Export a parameter set in one of :data:`FORMATS`.
-
-    Args:
-        params: The parameter set; validated again first.
-        fmt: ``"json"`` (:func:`to_json`) or ``"ivar"`` (:func:`to_ivar`).
-        **kw: Passed on: ``assumptions`` to both formats; ``motor`` (or its other name
-            ``axis``, which every family's export takes) to ``"ivar"`` (a JSON file holds
-            one motor's set and ignores it); ``metrics``, ``notes``, ``created`` to JSON.
-
-    Returns:
-        The exported text; :data:`FILE_EXTENSIONS` suggests a file extension.
-
-    Raises:
-        ParameterError: for an unknown format (listing the formats) or an illegal set.
-    """
-    fmt = _check_format(fmt)
-    if fmt == "json":
-        kw.pop("axis", None)
-        kw.pop("motor", None)
-        return to_json(params, **kw)
-    if "axis" in kw:
+def _write_ivar(params: Any, **kw: Any) -> str:
+    if "axis" in kw:  # every family's export takes axis; for PMAC it is the motor
         axis = kw.pop("axis")
         if "motor" in kw and kw["motor"] != axis:
             raise ParameterError(
@@ -450,31 +384,21 @@ def export(params: PMACParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
     return to_ivar(params, **kw)
 
 
-def import_params(
-    text: str,
-    fmt: str,
-    model: str | PMACChipModel | None = None,
-    motor: int | None = None,
-) -> PMACParams:
-    """Import a parameter set exported in one of :data:`FORMATS`.
+FORMAT_TABLE = Formats(
+    _SCHEMA,
+    FILE_EXTENSIONS,
+    writers={"ivar": _write_ivar},
+    readers={"ivar": lambda text, model, motor=None: from_ivar(text, model, motor)},
+    index="motor",
+)
 
-    Args:
-        text: The exported text.
-        fmt: ``"json"`` or ``"ivar"``.
-        model: Chip model; default the one the text names. If both are given they must
-            agree. Required for an I-variable file without a header.
-        motor: ``"ivar"`` only: the motor to read; default the header's, else the only one.
-
-    Returns:
-        The parameter set (for the provenance of a JSON file use :func:`from_json`).
-
-    Raises:
-        ParameterError: for an unknown format (listing the formats) or anything the
-            format's importer rejects.
-    """
-    fmt = _check_format(fmt)
-    if fmt == "json":
-        if motor is not None:
-            raise ParameterError("motor= applies to fmt='ivar' only; a JSON file has no motor.")
-        return _SCHEMA.read_params(text, model)
-    return from_ivar(text, model, motor)
+export, import_params = FORMAT_TABLE.functions(
+    __name__,
+    "PMACParams",
+    '``"json"`` (:func:`to_json`) or ``"ivar"`` (:func:`to_ivar`)',
+    "``assumptions`` to both formats; ``motor`` (or its other name ``axis``, which every "
+    "family's export takes) to ``\"ivar\"`` (a JSON file holds one motor's set and ignores "
+    "it); ``metrics``, ``notes``, ``created`` to JSON.",
+    index_doc='``motor``, for ``"ivar"`` only: the motor to read; default the header\'s, '
+    "else the only one.",
+)

@@ -23,10 +23,10 @@ import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
-import numpy as np
-
 from servogym import __version__
 from servogym._files import seal, unseal
+from servogym.chips._formats import Formats, check_index, resolve_model
+from servogym.chips._formats import read_header as read_header_lines
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
@@ -34,7 +34,6 @@ from servogym.chips._paramfile import (
     FileSchema,
     ParamFile,
     assumption_lines,
-    check_format,
 )
 from servogym.chips._space import ParameterError
 from servogym.chips.pmd._params import (
@@ -211,18 +210,7 @@ def _decode(words: Sequence[int], width: str) -> int:
 
 
 def _check_axis(chip: PMDChipModel, axis: Any, where: str = "") -> int:
-    at = f"{where}: " if where else ""
-    if isinstance(axis, bool) or not isinstance(axis, int | np.integer):
-        raise ParameterError(
-            f"{at}axis must be an integer with 1 <= axis <= {chip.n_axes} ({chip.name}); "
-            f"got axis={axis!r} of type {type(axis).__name__}."
-        )
-    if not 1 <= axis <= chip.n_axes:
-        raise ParameterError(
-            f"{at}axis must satisfy 1 <= axis <= {chip.n_axes} ({chip.name} has "
-            f"{chip.n_axes} {'axes' if chip.n_axes > 1 else 'axis'}); got axis={int(axis)}."
-        )
-    return int(axis)
+    return check_index(chip, axis, chip.n_axes, where=where)
 
 
 def _chip(model: str | PMDChipModel) -> PMDChipModel:
@@ -233,21 +221,7 @@ def _resolve_model(
     model: str | PMDChipModel | None, header: Mapping[str, Any], what: str
 ) -> PMDChipModel:
     """The chip model from the argument and/or the header; they must agree."""
-    named = header.get("chip_model")
-    if model is None:
-        if named is None:
-            raise ParameterError(
-                f"the {what} names no chip model (no 'chip_model:' header comment); pass "
-                f"model=, one of {', '.join(CHIP_MODELS)}."
-            )
-        return get_model(named)
-    chip = _chip(model)
-    if named is not None and get_model(named).name != chip.name:
-        raise ParameterError(
-            f"model={chip.name!r} disagrees with the {what}'s header 'chip_model: {named}'; "
-            f"pass model={named!r}, or model=None to use the header."
-        )
-    return chip
+    return resolve_model(model, header, _chip, CHIP_MODELS, what)
 
 
 class _Collector:
@@ -312,8 +286,6 @@ def _header_lines(p: PMDParams, a: PMDAssumptions, axis: int, title: str) -> lis
 
 
 _C_COMMENT = re.compile(r"/\*.*?\*/|//[^\n]*", re.DOTALL)
-_HEADER_KEY = re.compile(r"^[\s*#/]*([a-z_]+)\s*:\s*(\S.*?)\s*$")
-_HEADER_ASSUMPTION = re.compile(r"^[\s*#/]*assumption\s+PMD-A\d+\s+([a-z_]+)\s*:\s*(\S+)\s*$")
 
 
 def _comment_lines(text: str) -> list[str]:
@@ -341,19 +313,7 @@ def read_header(text: str) -> dict[str, Any]:
     Raises:
         ParameterError: if the header lists only some assumptions, or an unknown one.
     """
-    fields: dict[str, Any] = {}
-    assumed: dict[str, str] = {}
-    for line in _comment_lines(text):
-        m = _HEADER_ASSUMPTION.match(line)
-        if m:
-            assumed.setdefault(m.group(1), m.group(2))
-            continue
-        m = _HEADER_KEY.match(line)
-        if m:
-            fields.setdefault(m.group(1), m.group(2))
-    if assumed:
-        fields["assumptions"] = _SCHEMA.complete_assumptions(assumed, "the header")
-    return fields
+    return read_header_lines(_comment_lines(text), _SCHEMA, "PMD", lead=r"[\s*#/]*")
 
 
 # --------------------------------------------------------------------------------------
@@ -857,55 +817,21 @@ def from_host_text(text: str, model: str | PMDChipModel | None = None) -> PMDPar
 # --------------------------------------------------------------------------------------
 
 
-def _check_format(fmt: Any) -> str:
-    return check_format(fmt, FILE_EXTENSIONS)
+FORMAT_TABLE = Formats(
+    _SCHEMA,
+    FILE_EXTENSIONS,
+    writers={"cmotion": lambda params, **kw: to_cmotion(params, **kw),
+             "host": lambda params, **kw: to_host_text(params, **kw)},
+    readers={"cmotion": lambda text, model: from_cmotion(text, model),
+             "host": lambda text, model: from_host_text(text, model)},
+)  # fmt: skip
 
-
-def export(params: PMDParams | Mapping[str, Any], fmt: str, **kw: Any) -> str:
-    """Export a parameter set in one of :data:`FORMATS`.
-
-    Args:
-        params: The parameter set; validated again first.
-        fmt: ``"json"`` (:func:`to_json`), ``"cmotion"`` (:func:`to_cmotion`) or
-            ``"host"`` (:func:`to_host_text`).
-        **kw: Passed on: ``assumptions`` to every format; ``axis`` to the C-Motion and host
-            formats (a JSON file holds one axis' set and ignores ``axis``); ``metrics``,
-            ``notes``, ``created`` to JSON.
-
-    Returns:
-        The exported text; :data:`FILE_EXTENSIONS` suggests a file extension.
-
-    Raises:
-        ParameterError: for an unknown format (listing the formats) or an illegal set.
-    """
-    fmt = _check_format(fmt)
-    if fmt == "json":
-        kw.pop("axis", None)
-        return to_json(params, **kw)
-    if fmt == "cmotion":
-        return to_cmotion(params, **kw)
-    return to_host_text(params, **kw)
-
-
-def import_params(text: str, fmt: str, model: str | PMDChipModel | None = None) -> PMDParams:
-    """Import a parameter set exported in one of :data:`FORMATS`.
-
-    Args:
-        text: The exported text.
-        fmt: ``"json"``, ``"cmotion"`` or ``"host"``.
-        model: Chip model; default the one the text names. If both are given they must
-            agree. Required for host text without a header.
-
-    Returns:
-        The parameter set (for the provenance of a JSON file use :func:`from_json`).
-
-    Raises:
-        ParameterError: for an unknown format (listing the formats) or anything the
-            format's importer rejects.
-    """
-    fmt = _check_format(fmt)
-    if fmt == "json":
-        return _SCHEMA.read_params(text, model)
-    if fmt == "cmotion":
-        return from_cmotion(text, model)
-    return from_host_text(text, model)
+export, import_params = FORMAT_TABLE.functions(
+    __name__,
+    "PMDParams",
+    '``"json"`` (:func:`to_json`), ``"cmotion"`` (:func:`to_cmotion`) or ``"host"`` '
+    "(:func:`to_host_text`)",
+    "``assumptions`` to every format; ``axis`` to the C-Motion and host formats (a JSON "
+    "file holds one axis' set and ignores ``axis``); ``metrics``, ``notes``, ``created`` to "
+    "JSON.",
+)
