@@ -21,7 +21,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._space import ParameterError, ParamSpec
+from servogym.chips._profiles import check_arrays, int_arg
+from servogym.chips._space import ParameterError
 from servogym.chips.parker6k._params import SSFR_PERIOD_US
 
 MICRO = 1_000_000
@@ -85,15 +86,7 @@ class Parker6kProfile:
     ssfr: int = 1
 
     def __post_init__(self) -> None:
-        sizes = {}
-        for name in ("position", "velocity", "acceleration"):
-            arr = np.ascontiguousarray(getattr(self, name), dtype=np.int64)
-            if arr.ndim != 1:
-                raise ValueError(f"Parker6kProfile.{name} must be 1-D; got shape {arr.shape}.")
-            object.__setattr__(self, name, arr)
-            sizes[name] = arr.shape[0]
-        if len(set(sizes.values())) != 1:
-            raise ValueError(f"Parker6kProfile arrays must have the same length; got {sizes}.")
+        check_arrays(self)
 
     @property
     def n_ticks(self) -> int:
@@ -118,8 +111,7 @@ def _real(name: str, value: Any, high: float) -> float:
     return x
 
 
-def _int(name: str, value: Any, low: int, high: int, width: str) -> int:
-    return ParamSpec(name, low, high, low, width).validate(value)
+_int = int_arg
 
 
 def ssfr_of(sample_time_s: Any) -> int:

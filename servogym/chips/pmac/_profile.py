@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
-from typing import Any
 
 import numpy as np
 
-from servogym.chips._space import ParameterError, ParamSpec
+from servogym.chips._profiles import check_arrays, int_arg, real_arg
+from servogym.chips._space import ParameterError
 
 S32_MIN, S32_MAX = -(1 << 31), (1 << 31) - 1
 MAX_TICKS = 1 << 24
@@ -60,16 +59,7 @@ class Profile:
     move_ticks: int = 0
 
     def __post_init__(self) -> None:
-        sizes = {}
-        for name in ("position", "velocity", "acceleration"):
-            arr = np.ascontiguousarray(getattr(self, name), dtype=np.int64)
-            if arr.ndim != 1:
-                raise ValueError(f"Profile.{name} must be 1-D; got shape {arr.shape}.")
-            object.__setattr__(self, name, arr)
-            sizes[name] = arr.shape[0]
-        if len(set(sizes.values())) != 1:
-            raise ValueError(f"Profile arrays must have the same length; got {sizes}.")
-        n = sizes["position"]
+        n = check_arrays(self)
         if not 0 <= self.move_ticks <= n:
             raise ValueError(
                 f"Profile.move_ticks must satisfy 0 <= move_ticks <= n_ticks={n}; "
@@ -105,20 +95,8 @@ class Profile:
         return int(self.position[-1])
 
 
-def _int_arg(name: str, value: Any, low: int, high: int, width: str) -> int:
-    return ParamSpec(name, low, high, low, width).validate(value)
-
-
-def _real_arg(name: str, value: Any, *, positive: bool = False) -> float:
-    rule = "a finite number > 0" if positive else "a finite number"
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ParameterError(
-            f"{name} must be {rule}; got {name}={value!r} of type {type(value).__name__}."
-        )
-    x = float(value)
-    if not math.isfinite(x) or (positive and x <= 0.0):
-        raise ParameterError(f"{name} must be {rule}; got {name}={value!r}.")
-    return x
+_int_arg = int_arg
+_real_arg = real_arg
 
 
 def _pieces(

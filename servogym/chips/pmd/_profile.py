@@ -16,14 +16,14 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-import numbers
 from collections.abc import Sequence
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._space import ParameterError, ParamSpec
+from servogym.chips._profiles import check_arrays, int_arg, real_arg
+from servogym.chips._space import ParameterError
 
 ONE_1616 = 1 << 16
 """One count/cycle (or count/cycle^2) in 16.16 fixed point."""
@@ -129,17 +129,7 @@ class Profile:
     start: int = 0
 
     def __post_init__(self) -> None:
-        arrays = {}
-        for name in ("position", "velocity", "acceleration"):
-            arr = np.ascontiguousarray(getattr(self, name), dtype=np.int64)
-            if arr.ndim != 1:
-                raise ValueError(f"Profile.{name} must be 1-D; got shape {arr.shape}.")
-            arrays[name] = arr
-            object.__setattr__(self, name, arr)
-        sizes = {name: a.shape[0] for name, a in arrays.items()}
-        if len(set(sizes.values())) != 1:
-            raise ValueError(f"Profile arrays must have the same length; got {sizes}.")
-        n = sizes["position"]
+        n = check_arrays(self)
         if self.move_ticks is not None and not 0 <= self.move_ticks <= n:
             raise ValueError(
                 f"Profile.move_ticks must satisfy 0 <= move_ticks <= n_ticks={n}; "
@@ -162,22 +152,8 @@ class Profile:
 # --------------------------------------------------------------------------------------
 
 
-def _int_arg(name: str, value: Any, low: int, high: int, width: str) -> int:
-    """``value`` as a Python int, or ParameterError naming ``name``, the value and range."""
-    return ParamSpec(name, low, high, low, width).validate(value)
-
-
-def _real_arg(name: str, value: Any, *, positive: bool = False) -> float:
-    """``value`` as a finite float (int or float, not bool), optionally > 0."""
-    rule = "a finite number > 0" if positive else "a finite number"
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ParameterError(
-            f"{name} must be {rule}; got {name}={value!r} of type {type(value).__name__}."
-        )
-    x = float(value)
-    if not math.isfinite(x) or (positive and x <= 0.0):
-        raise ParameterError(f"{name} must be {rule}; got {name}={value!r}.")
-    return x
+_int_arg = int_arg
+_real_arg = real_arg
 
 
 def _assumptions(assumptions: ProfileAssumptions | None) -> ProfileAssumptions:
