@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import sys
@@ -498,9 +499,20 @@ METRIC_UNITS = {
 @app.command()
 def check(
     params_file: Annotated[Path, typer.Argument(metavar="PARAMS", help="A parameter file.")],
-    plant: Annotated[str, typer.Option(help="Plant family (see `servogym plants`).")],
+    plant: Annotated[
+        str | None,
+        typer.Option(help="Plant family (see `servogym plants`); required without --instance."),
+    ] = None,
     chip: Annotated[
         str | None, typer.Option(help="Chip model (default: the file's; must agree).")
+    ] = None,
+    instance: Annotated[
+        str | None,
+        typer.Option(
+            "--instance",
+            help="A benchmark instance id (`servogym benchmark --list`): its chip, plant, "
+            "plant values and move.",
+        ),
     ] = None,
     plant_param: PlantParamOption = None,
     plant_file: PlantFileOption = None,
@@ -551,8 +563,28 @@ def check(
     check_number("--min-phase-margin", min_phase_margin, low=0, high=90)
     check_number("--max-following-error", max_following_error, low=0, low_open=True)
     check_number("--max-saturation", max_saturation, low=0, high=1)
-    check_choice("--plant", plant, get_plant)
     check_choice("--chip", chip, get_chip)
+    bench = None
+    if instance is not None:
+        from servogym.autotune.bench import get_suite
+
+        if plant_param or plant_file is not None:
+            _fail("--instance fixes the plant: give neither --plant-param nor --plant-file")
+        try:
+            bench = get_suite(instance.split("/")[0]).spec(instance)
+        except (KeyError, ValueError) as exc:
+            _fail(f"--instance: {exc.args[0]}")
+            return
+        if plant is not None and plant != bench.plant:
+            _fail(f"--plant {plant} differs from --instance {instance}'s plant {bench.plant}")
+        plant = bench.plant
+        chip = chip or bench.chip_model
+        if chip.upper() != bench.chip_model.upper():
+            _fail(f"--chip {chip} differs from --instance {instance}'s chip {bench.chip_model}")
+    if plant is None:
+        _fail("--plant is required (or --instance, a benchmark instance id)")
+        return
+    check_choice("--plant", plant, get_plant)
     try:
         loaded = read_params_file(params_file, model=chip, what="PARAMS")
         if chip is not None and chip.upper() != loaded.params.model.upper():
@@ -563,11 +595,14 @@ def check(
             max_following_error=max_following_error,
             max_saturation=max_saturation,
         )
-        scenario = Scenario(
-            loaded.params.model, plant,
-            plant_values=_plant_values(plant_file, plant, plant_param),
-            assumptions=loaded.assumptions,
-        )  # fmt: skip
+        if bench is not None:
+            scenario = dataclasses.replace(bench.scenario(), assumptions=loaded.assumptions)
+        else:
+            scenario = Scenario(
+                loaded.params.model, plant,
+                plant_values=_plant_values(plant_file, plant, plant_param),
+                assumptions=loaded.assumptions,
+            )  # fmt: skip
         folder = out or params_file.with_name(params_file.stem + "_check")
         check_writable_folder("--out", folder)  # before the check, not after it
         with _working(
@@ -581,6 +616,8 @@ def check(
         return
     doc = {"params_file": str(params_file), "chip_model": loaded.params.model, "plant": plant,
            "plant_values": scenario.plant_values, **report.to_dict()}  # fmt: skip
+    if instance is not None:
+        doc["instance"] = instance
     write_atomic(folder / "check.json", json.dumps(doc, indent=2) + "\n")
     if as_json:
         typer.echo(json.dumps(doc, indent=2))

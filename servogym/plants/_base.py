@@ -608,6 +608,10 @@ class PlantFamily(abc.ABC):
     def _transmission(self, values: Mapping[str, Any]) -> tuple[float, float]:
         """Motor shaft angle per joint unit (rad per joint unit) and encoder counts per unit."""
 
+    def counts_per_unit(self, values: Mapping[str, Any] | None = None) -> float:
+        """Encoder counts per joint unit of an instance (nominal values where not given)."""
+        return float(self._transmission({**self.nominal(), **(values or {})})[1])
+
     def _axis_io(self, model: mujoco.MjModel, values: Mapping[str, Any]) -> AxisIO:
         joint = model.joint(MOTOR_JOINT)
         ratio, counts_per_unit = self._transmission(values)

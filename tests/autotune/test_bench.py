@@ -32,7 +32,7 @@ from servogym.chips import ParameterError
 from servogym.chips.parker6k import SPEC_VERSION as PARKER6K_SPEC
 from servogym.chips.pmd._params import SPEC_VERSION as PMD_SPEC
 
-SUITE = get_suite()
+SUITE = get_suite(SUITE_VERSION)  # servobench-v0; v1: test_bench_v1.py
 FAST_ID = "servobench-v0/mc2100/rotary/light/fast"
 PARAMS = {"kp": 8800, "ki": 70, "kd": 15741, "kvff": 729, "kaff": 140, "kout": 708,
           "integration_limit": 2067, "derivative_time": 1, "bias": -238}  # fmt: skip
@@ -81,11 +81,11 @@ def test_every_instance_evaluates_its_defaults_to_a_finite_cost(instance_id):
 
 def test_same_id_same_result_in_this_and_a_fresh_process():
     a = SUITE.instance(FAST_ID).evaluate(PARAMS)
-    b = get_suite().instance(FAST_ID).evaluate(PARAMS)
+    b = get_suite(SUITE_VERSION).instance(FAST_ID).evaluate(PARAMS)
     assert a == b
     code = (
         "from servogym.autotune.bench import get_suite;"
-        f"print(repr(get_suite().instance({FAST_ID!r}).evaluate({PARAMS!r})))"
+        f"print(repr(get_suite({SUITE_VERSION!r}).instance({FAST_ID!r}).evaluate({PARAMS!r})))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert float(out.stdout.strip()) == a
@@ -111,7 +111,7 @@ def test_instance_errors_name_the_rule():
     inst = SUITE.instance(FAST_ID)
     with pytest.raises(ParameterError, match="0 <= kp <= 32767"):
         inst.evaluate({"kp": 40000})
-    with pytest.raises(ParameterError, match="use evaluate_unit"):
+    with pytest.raises(ParameterError, match="needs exactly the search_space keys"):
         inst.evaluate({"u_kp": 0.1})
     with pytest.raises(ParameterError, match="unknown register"):
         inst.evaluate({"sgp": 1})
@@ -203,11 +203,11 @@ def test_job_key_is_a_stable_path():
 
 
 def test_best_known_data_file_covers_every_instance_with_provenance():
-    data = load_reference()
+    data = load_reference(SUITE_VERSION)
     for key in ("method", "date", "versions", "instances"):
         assert key in data
     assert {"servogym", "optuna", "pmd_spec", "parker6k_spec"} <= set(data["versions"])
-    best = load_best_known()
+    best = load_best_known(SUITE_VERSION)
     assert set(best) == set(SUITE.ids("all"))
     for i, rec in best.items():
         assert math.isfinite(rec["cost"]) and rec["found_by"]
@@ -219,7 +219,7 @@ def test_servobench_v0_is_marked_superseded_by_the_loop_timing_change():
     # servobench-v0's best-known costs were measured on the old tick (one implicitfast
     # mj_step per servo period, half a period ahead of the plant, no loop latency): issue 13
     # changed the loop, so they no longer reproduce. The file says so, in every record too.
-    data = load_reference()
+    data = load_reference(SUITE_VERSION)
     note = data["superseded"]
     assert note == superseded_note(SUITE_VERSION)
     assert "issue 13" in note["by"] and "half a period ahead of the plant" in note["reason"]
@@ -229,7 +229,7 @@ def test_servobench_v0_is_marked_superseded_by_the_loop_timing_change():
     # The stored provenance shows it: the chip specs before the loop-latency assumption.
     assert data["versions"]["pmd_spec"] == "pmd-spec-1" != PMD_SPEC
     assert data["versions"]["parker6k_spec"] == "parker6k-spec-1" != PARKER6K_SPEC
-    assert all(rec["superseded"] == note for rec in load_best_known().values())
+    assert all(rec["superseded"] == note for rec in load_best_known(SUITE_VERSION).values())
     assert SUITE.instance(FAST_ID).best_known_record["superseded"] == note
     doc = (Path(__file__).parents[2] / "docs" / "benchmark.md").read_text()
     assert "superseded by the loop-timing change of issue 13" in " ".join(doc.split())
@@ -275,8 +275,8 @@ def test_stage2_refinement_keeps_provenance_and_the_superseded_note(tmp_path):
     from servogym.autotune.bench import data_path, refine_from_runs
 
     path = tmp_path / "ref.json"
-    path.write_text(data_path().read_text())
-    before = json.loads(data_path().read_text())
+    path.write_text(data_path(SUITE_VERSION).read_text())
+    before = json.loads(data_path(SUITE_VERSION).read_text())
     jobs = [j for j in _tiny_jobs() if j.tuner == "tpe" and j.seed == 0]
     run_jobs(jobs, tmp_path / "runs")
     runs = load_results(tmp_path / "runs")

@@ -1,18 +1,24 @@
 """A benchmark instance: one fully specified tuning problem any optimizer can use.
 
-The instance follows the shape of optunahub's benchmark problems: ``search_space`` (Optuna
-distributions), ``directions``, ``evaluate(params)``, ``__call__(trial)`` (an Optuna
-objective) and, for constraints, ``evaluate_constraints(params)`` and
-``constraints_func(trial)``. It needs neither optunahub nor servogym's tuners.
+The instance is an optunahub benchmark problem (``optunahub.benchmarks.BaseProblem``):
+``search_space`` (Optuna distributions), ``directions``, ``evaluate(params)`` and
+``evaluate_constraints(params)`` (a dict, feasible when every value is <= 0) take the
+``search_space`` keys, and ``__call__(trial)`` is an Optuna objective that sets the trial's
+constraints. It needs none of servogym's tuners.
 
-Two views of the same search space:
+Two views of the same search space, both accepted by ``evaluate``:
 
-* registers (``space``): each searched register by name with its legal integer range
-  (:class:`servogym.chips.ParamSpec`); ``evaluate`` takes register values;
 * the unit cube (``search_space``): ``u_<register>`` in [-1, 1], mapped onto a legal value by
   ``ParamSpec.from_unit`` (log-uniform for log-scaled gains, 0 reachable at the bottom).
-  ``__call__`` suggests these; servogym's tuners search the same cube, so every optimizer
-  faces the same problem.
+  servogym's tuners search the same cube, so every optimizer faces the same problem;
+* registers (``space``): each searched register by name with its legal integer range
+  (:class:`servogym.chips.ParamSpec`), e.g. a set read from a parameter file.
+
+The constraints are the ones ``servogym tune`` sets (:class:`~servogym.autotune.Constraints`):
+following error within 1 % of the move, at most 5 % of ticks at the motor limit, no
+divergence and, in servobench-v1, gain margin >= 6 dB and phase margin >= 30 deg at every
+loop-latency choice. The last evaluation is kept, so ``evaluate`` and
+``evaluate_constraints`` of the same point simulate once.
 
 Thread safety: the plant is edited in place during an evaluation, so each thread gets its
 own evaluator (built lazily on first use); a process pool gets one per process.
@@ -24,17 +30,22 @@ import threading
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from optunahub.benchmarks import BaseProblem
+
 from servogym.autotune._problem import Constraints, Outcome, TuneProblem, aggregate
 from servogym.autotune._space import UNIT_PREFIX, SearchSpace
-from servogym.autotune.bench._suite import InstanceSpec
+from servogym.autotune.bench._suite import SUITE_VERSION, InstanceSpec
 from servogym.chips._space import ParameterError, ParamSpec
 from servogym.sim._scenario import Evaluation, Evaluator
 
 CONSTRAINT_NAMES = ("max_following_error", "saturation_fraction", "diverged")
-"""The constraint values, in order (feasible when every value is <= 0)."""
+"""servobench-v0's constraint values, in order (feasible when every value is <= 0)."""
+
+CONSTRAINT_NAMES_V1 = (*CONSTRAINT_NAMES, "gain_margin", "phase_margin")
+"""servobench-v1's: v0's and the margin minima (:meth:`TuneProblem.constraint_values`)."""
 
 
-class BenchmarkInstance:
+class BenchmarkInstance(BaseProblem):
     """One instance of a suite (see :class:`servogym.autotune.bench.Suite`).
 
     Args:
@@ -46,7 +57,8 @@ class BenchmarkInstance:
         id: The instance id.
         spec: The :class:`InstanceSpec`.
         problem: The :class:`~servogym.autotune.TuneProblem` servogym's tuners are given
-            (nominal plant, default constraints, seed 0).
+            (nominal plant, the tune command's default constraints, seed 0).
+        constraint_names: Names of the constraint values, in order.
     """
 
     def __init__(self, spec: InstanceSpec, best_known: Mapping[str, Any] | None = None) -> None:
@@ -55,8 +67,11 @@ class BenchmarkInstance:
         scenario = spec.scenario()
         self.problem = TuneProblem(
             scenario=scenario,
-            space=SearchSpace.for_chip(scenario.chip_model),
+            space=SearchSpace.for_chip(scenario.chip_model, fixed=spec.fixed),
             constraints=Constraints(),
+        )
+        self.constraint_names = (
+            CONSTRAINT_NAMES if spec.suite == SUITE_VERSION else CONSTRAINT_NAMES_V1
         )
         self._best_known = dict(best_known) if best_known is not None else None
         self._local = threading.local()
@@ -89,7 +104,8 @@ class BenchmarkInstance:
         return {n: s.default for n, s in self.space.items()}
 
     def values_from_unit(self, unit: Mapping[str, float]) -> dict[str, int]:
-        """Register values of a point of the unit cube (keys ``u_<register>``)."""
+        """Register values of a point of the unit cube (keys ``u_<register>``; the fixed
+        registers included)."""
         return self.problem.space.values_from_unit(unit)
 
     def to_unit(self, values: Mapping[str, int]) -> dict[str, float]:
@@ -115,71 +131,94 @@ class BenchmarkInstance:
         return self._fe_limit
 
     def _check(self, params: Mapping[str, Any]) -> dict[str, int]:
-        space = self.space
-        unknown = [k for k in params if k not in space]
-        if unknown:
-            if all(k.startswith(UNIT_PREFIX) for k in params):
+        """Register values of ``params``: the unit cube (every ``u_<register>`` of
+        ``search_space``) or registers (missing ones at the chip's defaults)."""
+        dists = self.search_space
+        if params and all(str(k).startswith(UNIT_PREFIX) for k in params):
+            missing = [k for k in dists if k not in params]
+            unknown = [k for k in params if k not in dists]
+            if missing or unknown:
                 raise ParameterError(
-                    f"evaluate takes register values ({', '.join(space)}); got unit-cube "
-                    "coordinates: use evaluate_unit for u_<register> keys."
+                    f"{self.id}: a unit-cube point needs exactly the search_space keys "
+                    f"({', '.join(dists)}); missing {', '.join(missing) or 'none'}, unknown "
+                    f"{', '.join(map(str, unknown)) or 'none'}."
                 )
+            for k, v in params.items():
+                if not (isinstance(v, int | float) and -1.0 <= v <= 1.0):
+                    raise ParameterError(
+                        f"{self.id}: {k} must satisfy -1 <= {k} <= 1; got {k}={v!r}."
+                    )
+            return self.values_from_unit(params)
+        space = self.space
+        fixed = self.problem.space.fixed
+        unknown = [k for k in params if k not in space and k not in fixed]
+        if unknown:
             raise ParameterError(
-                f"{self.id} searches {', '.join(space)}; got unknown register(s) "
-                f"{', '.join(map(str, unknown))}."
+                f"{self.id} searches {', '.join(space)} (or the unit cube "
+                f"{', '.join(dists)}); got unknown register(s) {', '.join(map(str, unknown))}."
             )
-        return {k: space[k].validate(v) for k, v in params.items()}
+        held = [k for k in params if k in fixed and params[k] != fixed[k]]
+        if held:
+            raise ParameterError(
+                f"{self.id} holds {', '.join(f'{k}={fixed[k]}' for k in held)}; got "
+                f"{', '.join(f'{k}={params[k]!r}' for k in held)}."
+            )
+        return {**fixed, **{k: space[k].validate(v) for k, v in params.items() if k not in fixed}}
 
     def evaluate_details(self, params: Mapping[str, Any]) -> Evaluation:
-        """The full :class:`~servogym.sim.Evaluation` of register values (missing registers
-        keep the chip's defaults; an illegal value raises ``ParameterError`` with its range)."""
+        """The full :class:`~servogym.sim.Evaluation` of a point (unit cube or registers;
+        missing registers keep the chip's defaults; an illegal value raises
+        ``ParameterError`` with its range). The last one is kept per thread."""
         values = self._check(params)
-        return self.evaluator.evaluate(self.problem.space.make_params(values))
+        key = tuple(sorted(values.items()))
+        last = getattr(self._local, "last", None)
+        if last is not None and last[0] == key:
+            return last[1]
+        ev = self.evaluator.evaluate(self.problem.space.make_params(values))
+        self._local.last = (key, ev)
+        return ev
 
     def outcome(self, params: Mapping[str, Any]) -> Outcome:
         """The evaluation as a tuner sees it (:class:`~servogym.autotune.Outcome`)."""
-        values = self._check(params)
-        ev = self.evaluator.evaluate(self.problem.space.make_params(values))
-        return aggregate(values, [ev], "mean")
+        return aggregate(self._check(params), [self.evaluate_details(params)], "mean")
 
     def evaluate(self, params: Mapping[str, Any]) -> float:
-        """Cost of register values (docs/cost.md): finite, lower is better."""
+        """Cost (docs/cost.md) of a point of ``search_space`` or of register values:
+        finite, lower is better."""
         return float(self.evaluate_details(params).cost)
 
     def evaluate_unit(self, unit: Mapping[str, float]) -> float:
         """Cost of a point of the unit cube (keys ``u_<register>``)."""
-        return self.evaluate(self.values_from_unit(unit))
+        return self.evaluate(unit)
 
     def constraint_values(self, evaluation: Evaluation | Outcome) -> list[float]:
-        """Constraint values of an evaluation, in :data:`CONSTRAINT_NAMES` order."""
-        c = self.problem.constraints
-        diverged = getattr(evaluation, "n_diverged", None)
-        if diverged is None:
-            diverged = int(evaluation.diverged)
-        return [
-            float(evaluation.max_following_error - self.following_error_limit),
-            float(evaluation.saturation_fraction - c.max_saturation),
-            float(diverged),
-        ]
+        """Constraint values of an evaluation, in :attr:`constraint_names` order."""
+        outcome = evaluation
+        if isinstance(evaluation, Evaluation):
+            outcome = aggregate({}, [evaluation], "mean")
+        named = self.problem.constraint_values(outcome, self.following_error_limit)
+        return [float(named[n]) for n in self.constraint_names]
 
-    def evaluate_constraints(self, params: Mapping[str, Any]) -> list[float]:
-        """Constraint values of register values (feasible when all are <= 0): following
+    def evaluate_constraints(self, params: Mapping[str, Any]) -> dict[str, float]:
+        """Constraint values of a point, by name (feasible when all are <= 0): following
         error beyond 1 % of the move, more than 5 % of ticks at the motor limit, divergence
-        (which includes the chip's own position-error trip)."""
-        return self.constraint_values(self.evaluate_details(params))
+        (which includes the chip's own position-error trip) and, in v1, the gain and phase
+        margin minima."""
+        values = self.constraint_values(self.evaluate_details(params))
+        return dict(zip(self.constraint_names, values, strict=True))
 
     def __call__(self, trial: Any) -> float:
-        """An Optuna objective: suggests the unit cube and returns the cost.
+        """An Optuna objective: suggests the unit cube and returns the cost (one simulation).
 
         The constraint values are stored both ways: ``trial.set_constraint`` (Optuna >= 5,
-        read by its samplers) and ``trial.user_attrs["constraints"]`` (optunahub's
+        read by its samplers) and ``trial.user_attrs["constraints"]`` (optunahub's older
         ``constraints_func`` convention, see :meth:`constraints_func`)."""
         unit = {name: trial._suggest(name, d) for name, d in self.search_space.items()}
-        evaluation = self.evaluate_details(self.values_from_unit(unit))
+        evaluation = self.evaluate_details(unit)
         values = self.constraint_values(evaluation)
         trial.set_user_attr("constraints", values)
-        if hasattr(trial, "set_constraint"):  # Optuna >= 5: samplers read them from here
-            for name, value in zip(CONSTRAINT_NAMES, values, strict=True):
-                trial.set_constraint(name, value)
+        for name, value in zip(self.constraint_names, values, strict=True):
+            trial.set_constraint(name, value)
         return float(evaluation.cost)
 
     @staticmethod
@@ -201,7 +240,7 @@ class BenchmarkInstance:
         if self._best_known is None:
             from servogym.autotune.bench._reference import load_best_known
 
-            self._best_known = load_best_known().get(self.id, {})
+            self._best_known = load_best_known(self.spec.suite).get(self.id, {})
         return self._best_known or None
 
     def describe(self) -> dict[str, Any]:
@@ -210,8 +249,17 @@ class BenchmarkInstance:
             **self.spec.describe(),
             "space": self.problem.space.describe(),
             "constraints": {
+                "names": list(self.constraint_names),
                 "max_following_error_counts": self.following_error_limit,
                 "max_saturation": self.problem.constraints.max_saturation,
                 "no_divergence": True,
+                **(
+                    {}
+                    if self.spec.suite == SUITE_VERSION
+                    else {
+                        "min_gain_margin_db": self.problem.constraints.min_gain_margin_db,
+                        "min_phase_margin_deg": self.problem.constraints.min_phase_margin_deg,
+                    }
+                ),
             },
         }

@@ -34,6 +34,7 @@ from servogym.autotune.bench._runner import (
     FLAG_EXPERIMENT,
     FLAG_FAILED,
     FLAG_FOLLOWING_ERROR,
+    FLAG_MARGINS,
     FLAG_SATURATION,
     UNSAFE_FLAGS,
 )
@@ -83,6 +84,7 @@ class Run:
             "diverged": int(np.count_nonzero(f & FLAG_DIVERGED)),
             "following_error": int(np.count_nonzero(f & FLAG_FOLLOWING_ERROR)),
             "saturation": int(np.count_nonzero(f & FLAG_SATURATION)),
+            "margins": int(np.count_nonzero(f & FLAG_MARGINS)),
         }
 
     def wall_at(self, budget: int) -> float:
@@ -107,6 +109,23 @@ def _quantiles(x: np.ndarray, qs: Sequence[float]) -> list[float]:
     """Quantiles of ratios that may be inf (no safe set): sample values, no interpolation
     (the ``inverted_cdf`` method), so a quantile is inf exactly when that run found none."""
     return [float(v) for v in np.quantile(x, qs, method="inverted_cdf")]
+
+
+BOOTSTRAP_RESAMPLES = 2000
+"""Resamples of the bootstrap interval of a median (seeded: the report is reproducible)."""
+
+
+def median_ci(x: np.ndarray, level: float = 0.95, seed: int = 0) -> tuple[float, float]:
+    """Percentile bootstrap interval of the median of ratios that may be inf (a run with no
+    safe set): each resample's median is a sample value (``inverted_cdf``), so a bound is inf
+    exactly when that many runs found no safe set."""
+    if len(x) == 0:
+        return math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(x), size=(BOOTSTRAP_RESAMPLES, len(x)))
+    meds = np.quantile(x[idx], 0.5, axis=1, method="inverted_cdf")
+    lo, hi = np.quantile(meds, [(1 - level) / 2, (1 + level) / 2], method="inverted_cdf")
+    return float(lo), float(hi)
 
 
 def _fmt(x: float, digits: int = 3) -> str:
@@ -257,6 +276,8 @@ def summarize(
                     "n_runs": len(rb),
                     "n_errors": sum(r.error is not None for r in rb),
                     **dict(zip(("q25_rel", "median_rel", "q75_rel"), q, strict=True)),
+                    "median_rel_ci95": list(median_ci(ratio)),
+                    "within_5pct": float(np.mean(ratio <= 1.05)) if len(ratio) else math.nan,
                     "within_10pct": float(np.mean(ratio <= 1.1)) if len(ratio) else math.nan,
                     "no_safe_set": int(np.sum(~np.isfinite(ratio))),
                     "targets_reached": float(reached),
@@ -265,6 +286,10 @@ def summarize(
                     "diverged_per_run": float(np.mean([u["diverged"] for u in unsafe])),
                     "fe_per_run": float(np.mean([u["following_error"] for u in unsafe])),
                     "sat_per_run": float(np.mean([u["saturation"] for u in unsafe])),
+                    "margins_per_run": float(np.mean([u["margins"] for u in unsafe])),
+                    "unsafe_fraction": float(
+                        sum(u["unsafe"] for u in unsafe) / max(int(evals.sum()), 1)
+                    ),
                     "runs_with_unsafe": float(np.mean([u["unsafe"] > 0 for u in unsafe])),
                     "median_wall_s": float(np.median(wall)),
                     "ms_per_eval": float(1000 * wall.sum() / max(evals.sum(), 1)),
@@ -281,10 +306,13 @@ SUMMARY_COLUMNS = (
     ("inst.", "n_instances"),
     ("runs", "n_runs"),
     ("median rel. cost [IQR]", None),
+    ("median 95 % CI", None),
+    ("within 5 %", "within_5pct"),
     ("within 10 %", "within_10pct"),
     ("targets reached", "targets_reached"),
     ("no safe set", "no_safe_set"),
-    ("unsafe evals/run (div/FE/sat)", None),
+    ("unsafe evals/run (div/FE/sat/margin)", None),
+    ("unsafe share", "unsafe_fraction"),
     ("runs with unsafe", "runs_with_unsafe"),
     ("median wall (s)", "median_wall_s"),
     ("ms/eval", "ms_per_eval"),
@@ -303,10 +331,13 @@ def _summary_table(rows: Sequence[Mapping[str, Any]]) -> list[str]:
         cells = [
             r["tuner"], str(r["budget"]), str(r["n_instances"]), str(r["n_runs"]),
             f"{_fmt(r['median_rel'])} [{_fmt(r['q25_rel'])}, {_fmt(r['q75_rel'])}]",
-            f"{r['within_10pct']:.0%}", f"{r['targets_reached']:.0%}", str(r["no_safe_set"]),
+            f"{_fmt(r['median_rel_ci95'][0])}-{_fmt(r['median_rel_ci95'][1])}",
+            f"{r['within_5pct']:.0%}", f"{r['within_10pct']:.0%}", f"{r['targets_reached']:.0%}",
+            str(r["no_safe_set"]),
             f"{r['unsafe_per_run']:.1f} ({r['diverged_per_run']:.1f}/{r['fe_per_run']:.1f}/"
-            f"{r['sat_per_run']:.1f})",
-            f"{r['runs_with_unsafe']:.0%}", f"{r['median_wall_s']:.1f}", f"{r['ms_per_eval']:.0f}",
+            f"{r['sat_per_run']:.1f}/{r['margins_per_run']:.1f})",
+            f"{r['unsafe_fraction']:.1%}", f"{r['runs_with_unsafe']:.0%}",
+            f"{r['median_wall_s']:.1f}", f"{r['ms_per_eval']:.0f}",
         ]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     return lines

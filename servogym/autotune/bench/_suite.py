@@ -1,29 +1,62 @@
-"""The instances of ``servobench-v0``: chip model x plant x load condition x task.
+"""The instances of the servobench suites: chip model x plant x load condition x task.
 
-Every instance is fully determined by its id, ``servobench-v0/<chip>/<plant>/<load>/<task>``
-(e.g. ``servobench-v0/mc2100/vertical-axis/heavy/fast``): the id names the chip model, the
-plant family, the fixed plant values of the load condition (:data:`LOADS`) and one
-point-to-point move (:data:`TASKS`). The plant is the family's nominal instance with those
-values; nothing is drawn at random, so an evaluation depends on the parameter set only.
+Every instance is fully determined by its id, ``<suite>/<chip>/<plant>/<load>/<task>``
+(e.g. ``servobench-v1/mc2100/vertical-axis/heavy/fast``): the id names the suite version,
+the chip model, the plant family, the fixed plant values of the load condition
+(:data:`LOADS`) and one point-to-point move (:data:`TASKS`). The plant is the family's
+nominal instance with those values; nothing is drawn at random, so an evaluation depends on
+the parameter set only.
+
+* ``servobench-v1`` (the default): four chip models, one of each family with PMD's two
+  generations (MC2100, MC58000, TurboPMAC2, 6250), 36 train and 12 held-out instances, on
+  the accurate default integration and each chip's default loop latency, with every
+  constraint ``servogym tune`` sets (margins included). The Turbo PMAC instances hold two
+  registers where an engineer sets them for the task: the fatal following error Ixx11 at
+  four times the following-error constraint, and the output limit Ixx69 at full scale (the
+  default 62.5 % is below what the heavy loads need; see :data:`PMAC_FIXED`).
+* ``servobench-v0``: three chip models, 24 train and 12 held-out instances; its best-known
+  costs were measured on servogym's first servo tick and are superseded (the data file
+  says so), the instances stay loadable.
 
 A behaviour change (another move, load, cost weight or plant) makes a new suite version;
-``servobench-v0`` stays as it is.
+published versions stay as they are.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 from collections.abc import Mapping
 from typing import Any
 
 from servogym.sim._scenario import MoveSpec, Scenario
 
 SUITE_VERSION = "servobench-v0"
+"""The first suite (superseded best-known costs); kept for the results that name it."""
 
-CHIPS: tuple[str, ...] = ("MC2100", "MC58000", "6250")
-"""Chip models: PMD Navigator (154 us), PMD Magellan (52 us), Parker 6250 (160 us). The PMAC
-family is not in the chip registry yet, so it has no instance in v0."""
+DEFAULT_SUITE = "servobench-v1"
+"""The suite ``servogym benchmark`` runs unless told otherwise."""
+
+SUITES: dict[str, tuple[str, ...]] = {
+    "servobench-v0": ("MC2100", "MC58000", "6250"),
+    "servobench-v1": ("MC2100", "MC58000", "TurboPMAC2", "6250"),
+}
+"""Every suite by name, with its chip models: PMD Navigator (154 us), PMD Magellan (52 us),
+Delta Tau Turbo PMAC2 (442 us), Parker 6250 (160 us). v0 predates the PMAC family."""
+
+CHIPS: tuple[str, ...] = SUITES["servobench-v0"]
+"""Chip models of servobench-v0."""
+
+PMAC_FIXED = {"output_limit": 32767}
+"""Registers the v1 Turbo PMAC instances hold at a task's value: Ixx69 at full scale. The
+fatal following error Ixx11 (1/16 count) is set per instance to four times the
+following-error constraint (:func:`pmac_trip_limit`)."""
+
+TRIP_FACTOR = 4.0
+"""Ixx11 of a v1 PMAC instance, as a multiple of the following-error constraint (1 % of the
+move): loose enough that only a set already far outside the constraint trips, tight enough
+to stop a runaway axis, as an engineer sets it for the task."""
 
 PLANTS: tuple[str, ...] = ("rotary", "two-mass", "vertical-axis", "arm")
 """Plant families: a rigid rotary axis, a resonant two-mass axis, a vertical ball-screw axis
@@ -79,6 +112,7 @@ class InstanceSpec:
         load: ``"light"`` or ``"heavy"``.
         task: ``"fast"`` or ``"slow"``.
         split: ``"train"`` or ``"heldout"``.
+        suite: Suite version the instance belongs to.
     """
 
     chip_model: str
@@ -86,12 +120,23 @@ class InstanceSpec:
     load: str
     task: str
     split: str
+    suite: str = SUITE_VERSION
 
     @property
     def id(self) -> str:
-        """``servobench-v0/<chip>/<plant>/<load>/<task>`` (chip in lower case)."""
+        """``<suite>/<chip>/<plant>/<load>/<task>`` (chip in lower case)."""
         chip = self.chip_model.lower()
-        return f"{SUITE_VERSION}/{chip}/{self.plant}/{self.load}/{self.task}"
+        return f"{self.suite}/{chip}/{self.plant}/{self.load}/{self.task}"
+
+    @property
+    def fixed(self) -> dict[str, int]:
+        """Registers held at a task's value (v1 Turbo PMAC: Ixx69 and Ixx11); the rest are
+        searched or at the chip's defaults."""
+        if self.suite == SUITE_VERSION or not self.chip_model.lower().startswith(
+            ("turbopmac", "geobrick")
+        ):
+            return {}
+        return {**PMAC_FIXED, "fatal_following_error_limit": pmac_trip_limit(self)}
 
     @property
     def plant_values(self) -> dict[str, float]:
@@ -111,6 +156,7 @@ class InstanceSpec:
         """JSON-ready description."""
         return {
             "id": self.id,
+            "suite": self.suite,
             "split": self.split,
             "chip_model": self.chip_model,
             "plant": self.plant,
@@ -118,11 +164,23 @@ class InstanceSpec:
             "task": self.task,
             "plant_values": self.plant_values,
             "move": dataclasses.asdict(self.move),
+            "fixed": self.fixed,
         }
 
 
-def _build_specs() -> dict[str, InstanceSpec]:
-    """Every chip x plant pair gets two (load, task) cells in train and one in held-out.
+def pmac_trip_limit(spec: InstanceSpec) -> int:
+    """Ixx11 (1/16 count) for an instance: :data:`TRIP_FACTOR` times its following-error
+    constraint, 1 % of the move in encoder counts."""
+    from servogym.plants import get_plant
+
+    counts = get_plant(spec.plant).counts_per_unit(spec.plant_values)
+    return round(16 * TRIP_FACTOR * 0.01 * abs(spec.move.distance) * counts)
+
+
+def _build_specs(suite: str) -> dict[str, InstanceSpec]:
+    """Every chip x plant pair gets three (load, task) cells: two in train and one in
+    held-out (v0); in v1 the pairs on one diagonal of the chip x plant square (one pair of
+    each chip and of each plant) keep all three in train, so 36 train and 12 held-out.
 
     The cells rotate over the pairs (a Latin-square pattern), so every chip, plant, load and
     task appears in both splits, and no held-out instance is a train instance.
@@ -130,17 +188,18 @@ def _build_specs() -> dict[str, InstanceSpec]:
     cells = [("light", "fast"), ("heavy", "slow"), ("heavy", "fast"), ("light", "slow")]
     out: dict[str, InstanceSpec] = {}
     k = 0
-    for chip in CHIPS:
-        for plant in PLANTS:
+    for c, chip in enumerate(SUITES[suite]):
+        for p, plant in enumerate(PLANTS):
             rot = [cells[(k + j) % 4] for j in range(4)]
+            all_train = suite != SUITE_VERSION and p == (c + 3) % len(PLANTS)
             for j, (load, task) in enumerate(rot[:3]):
-                spec = InstanceSpec(chip, plant, load, task, "train" if j < 2 else "heldout")
+                split = "train" if j < 2 or all_train else "heldout"
+                spec = InstanceSpec(chip, plant, load, task, split, suite)
                 out[spec.id] = spec
             k += 1
     return out
 
 
-_SPECS = _build_specs()
 SPLITS = ("train", "heldout", "all")
 
 
@@ -148,14 +207,14 @@ class Suite:
     """A versioned benchmark suite.
 
     Args:
-        name: Suite name; only ``"servobench-v0"`` exists.
+        name: Suite name, one of :data:`SUITES`.
     """
 
-    def __init__(self, name: str = SUITE_VERSION) -> None:
-        if name != SUITE_VERSION:
-            raise ValueError(f"unknown suite {name!r}; the suites are {SUITE_VERSION}.")
+    def __init__(self, name: str = DEFAULT_SUITE) -> None:
+        if name not in SUITES:
+            raise ValueError(f"unknown suite {name!r}; the suites are {', '.join(SUITES)}.")
         self.name = name
-        self._specs: Mapping[str, InstanceSpec] = _SPECS
+        self._specs: Mapping[str, InstanceSpec] = _specs(name)
 
     def ids(self, split: str = "train") -> list[str]:
         """Instance ids of a split (``"train"``, ``"heldout"`` or ``"all"``), in suite order."""
@@ -186,6 +245,11 @@ class Suite:
         return [self.instance(i) for i in self.ids(split)]
 
 
-def get_suite(name: str = SUITE_VERSION) -> Suite:
-    """A suite by name."""
+@functools.cache
+def _specs(suite: str) -> dict[str, InstanceSpec]:
+    return _build_specs(suite)
+
+
+def get_suite(name: str = DEFAULT_SUITE) -> Suite:
+    """A suite by name (:data:`SUITES`)."""
     return Suite(name)

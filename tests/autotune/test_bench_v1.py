@@ -1,0 +1,185 @@
+"""servobench-v1: the suite, the optunahub contract, the PMAC registers an engineer sets, and
+the best-known sets (each one through `servogym check --instance`)."""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+
+import numpy as np
+import optuna
+import pytest
+from optunahub.benchmarks import BaseProblem
+from typer.testing import CliRunner
+
+from servogym.autotune.bench import get_suite, load_best_known, load_reference
+from servogym.autotune.bench._instance import CONSTRAINT_NAMES_V1
+from servogym.autotune.bench._reference import ReferenceConfig
+from servogym.autotune.bench._suite import DEFAULT_SUITE, SUITES, TRIP_FACTOR
+from servogym.chips import ParameterError
+
+V1 = "servobench-v1"
+SUITE = get_suite(V1)
+PMAC_ID = "servobench-v1/turbopmac2/rotary/light/fast"
+FAMILY = {"MC2100": "pmd", "MC58000": "pmd", "TurboPMAC2": "pmac", "6250": "parker6k"}
+
+
+def test_v1_is_the_default_suite_and_v0_stays_loadable():
+    assert DEFAULT_SUITE == V1 == get_suite().name
+    assert set(SUITES) == {"servobench-v0", V1}
+    assert len(get_suite("servobench-v0").ids("all")) == 36
+    with pytest.raises(ValueError, match="the suites are servobench-v0, servobench-v1"):
+        get_suite("servobench-v2")
+
+
+def test_v1_splits_cover_every_family_load_and_task_in_both():
+    train, heldout = SUITE.ids("train"), SUITE.ids("heldout")
+    assert len(train) >= 36 and len(heldout) >= 12
+    assert not set(train) & set(heldout)
+    assert len(set(SUITE.ids("all"))) == len(train) + len(heldout)
+    for split in (train, heldout):
+        specs = [SUITE.spec(i) for i in split]
+        assert {FAMILY[s.chip_model] for s in specs} == {"pmd", "pmac", "parker6k"}
+        assert {s.plant for s in specs} == {"rotary", "two-mass", "vertical-axis", "arm"}
+        assert {s.load for s in specs} == {"light", "heavy"}
+        assert {s.task for s in specs} == {"fast", "slow"}
+    for i in SUITE.ids("all"):
+        assert i.startswith(f"{V1}/") and SUITE.spec(i).id == i and SUITE.spec(i).suite == V1
+
+
+def test_pmac_instances_hold_the_registers_an_engineer_sets_for_the_task():
+    inst = SUITE.instance(PMAC_ID)
+    fixed = inst.problem.space.fixed
+    assert fixed["output_limit"] == 32767  # the default 62.5 % cannot move the heavy loads
+    # Ixx11 (1/16 count) = TRIP_FACTOR x the following-error constraint (1 % of the move)
+    assert fixed["fatal_following_error_limit"] == pytest.approx(
+        16 * TRIP_FACTOR * inst.following_error_limit, abs=1
+    )
+    assert "output_limit" not in inst.space and "output_limit" in inst.values_from_unit(
+        {k: 0.0 for k in inst.search_space}
+    )
+    assert inst.evaluate({"output_limit": 32767}) == inst.evaluate({})
+    with pytest.raises(ParameterError, match="holds output_limit=32767; got output_limit=20480"):
+        inst.evaluate({"output_limit": 20480})
+    # the other families hold nothing
+    assert all(not SUITE.spec(i).fixed for i in SUITE.ids("all") if "turbopmac2" not in i)
+
+
+def test_instance_is_an_optunahub_problem_whose_search_space_evaluate_accepts():
+    inst = SUITE.instance(PMAC_ID)
+    assert isinstance(inst, BaseProblem)
+    unit = {k: 0.05 for k in inst.search_space}
+    cost = inst.evaluate(unit)
+    assert math.isfinite(cost)
+    assert cost == inst.evaluate(inst.values_from_unit(unit))  # the two views agree
+    cons = inst.evaluate_constraints(unit)
+    assert list(cons) == list(CONSTRAINT_NAMES_V1)
+    assert all(math.isfinite(v) for v in cons.values())
+    with pytest.raises(ParameterError, match="needs exactly the search_space keys"):
+        inst.evaluate({k: v for k, v in list(unit.items())[:-1]})
+    key = next(iter(unit))
+    with pytest.raises(ParameterError, match=f"-1 <= {key} <= 1; got {key}=1.5"):
+        inst.evaluate({**unit, key: 1.5})
+
+
+def test_evaluate_then_evaluate_constraints_simulates_once(monkeypatch):
+    inst = SUITE.instance(PMAC_ID)
+    calls = []
+    ev = inst.evaluator
+    original = ev.evaluate
+    monkeypatch.setattr(ev, "evaluate", lambda p: calls.append(1) or original(p))
+    unit = {k: -0.1 for k in inst.search_space}
+    inst.evaluate(unit)
+    inst.evaluate_constraints(unit)
+    assert len(calls) == 1
+    inst.evaluate({k: 0.1 for k in inst.search_space})
+    assert len(calls) == 2
+
+
+def test_optunahub_base_call_with_a_plain_optuna_study():
+    # optunahub's own BaseProblem.__call__ (not servogym's override): suggest the search
+    # space, set the constraints on the trial, return evaluate(params).
+    inst = SUITE.instance("servobench-v1/6250/rotary/light/fast")
+    study = optuna.create_study(
+        sampler=optuna.samplers.TPESampler(seed=0, constraints_func=None),
+        directions=inst.directions,
+    )
+    study.optimize(lambda t: BaseProblem.__call__(inst, t), n_trials=4)
+    for t in study.trials:
+        assert set(t.params) == set(inst.search_space)
+        assert list(t.constraints) == list(CONSTRAINT_NAMES_V1)
+        assert t.value == inst.evaluate(t.params)
+        feasible = all(v <= 0 for v in inst.evaluate_constraints(t.params).values())
+        assert feasible == all(v <= 0 for v in t.constraints.values())
+    # and servogym's own __call__ gives the same trial values
+    study2 = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=0))
+    study2.optimize(inst, n_trials=4)
+    assert [t.value for t in study2.trials] == [t.value for t in study.trials]
+
+
+def test_scipy_minimises_an_instance_with_its_constraints():
+    from scipy.optimize import NonlinearConstraint, minimize
+
+    inst = SUITE.instance("servobench-v1/mc2100/rotary/light/fast")
+    keys = list(inst.search_space)
+
+    def point(x: np.ndarray) -> dict[str, float]:
+        return dict(zip(keys, np.clip(x, -1.0, 1.0).tolist(), strict=True))
+
+    def cons(x: np.ndarray) -> np.ndarray:
+        return np.array(list(inst.evaluate_constraints(point(x)).values()))
+
+    x0 = np.zeros(len(keys))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = minimize(
+            lambda x: inst.evaluate(point(x)),
+            x0,
+            method="COBYLA",
+            constraints=[NonlinearConstraint(cons, -np.inf, 0.0)],
+            options={"maxiter": 25},
+        )
+    assert math.isfinite(res.fun) and res.fun <= inst.evaluate(point(x0))
+    assert res.fun == inst.evaluate(point(res.x))
+
+
+def test_reference_search_is_over_ten_times_the_largest_budget_from_several_methods():
+    config = ReferenceConfig.for_suite(V1)
+    assert config.n_evaluations >= 10 * 200
+    assert config.check_candidates > 0 and config.design_trials > 0
+
+
+def _records() -> dict[str, dict]:
+    return load_best_known(V1)
+
+
+def test_best_known_file_has_provenance_and_every_record_passed_its_check():
+    data = load_reference(V1)
+    if not data:
+        pytest.skip("servobench-v1 has no best-known data file yet")
+    assert "superseded" not in data
+    assert data["method"]["evaluations_per_instance"] >= 2000
+    assert {"servogym", "optuna", "pmd_spec", "pmac_spec", "parker6k_spec"} <= set(data["versions"])
+    for i, rec in data["instances"].items():
+        assert i in SUITE.ids("all")
+        assert rec["feasible"] and rec["check"]["passed"], i
+        assert math.isfinite(rec["cost"]) and rec["check_cost"] == rec["cost"], i
+
+
+@pytest.mark.parametrize("instance_id", SUITE.ids("all"))
+def test_every_best_known_set_reproduces_and_passes_servogym_check(instance_id, tmp_path):
+    rec = _records().get(instance_id)
+    if rec is None:
+        pytest.skip(f"{instance_id} has no best-known record yet")
+    from servogym.autotune._report import write_param_set
+    from servogym.cli import app
+
+    inst = SUITE.instance(instance_id)
+    assert inst.evaluate(rec["values"]) == rec["cost"]  # the stored set reproduces its cost
+    write_param_set(inst.problem.space.make_params(rec["values"]), tmp_path, hardware=False)
+    path = tmp_path / "best_params.json"
+    res = CliRunner().invoke(app, ["check", str(path), "--instance", instance_id, "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    assert doc["passed"] and doc["instance"] == instance_id
