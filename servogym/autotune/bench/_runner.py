@@ -502,7 +502,8 @@ def run_jobs(
             on_done(job, rec if stored else None, not stored)
 
     if scheduler is not None:
-        _run_on_cluster(ordered, scheduler, arrived)
+        if ordered:
+            _run_on_cluster(ordered, scheduler, arrived)
     elif workers <= 1:
         for job in ordered:
             arrived(job, compute_job(job))
