@@ -27,7 +27,8 @@ class Move:
         distance_counts: Signed move length (counts).
         max_velocity_counts_per_s: Velocity limit (counts/s), > 0.
         max_acceleration_counts_per_s2: Acceleration and deceleration limit (counts/s^2), > 0.
-        settle_s: Time at rest on the target after the move (s), >= 0.
+        settle_s: Time at rest on the target after the move (s), >= 0; in servo cycles
+            :meth:`settle_ticks`.
         kind: ``"trapezoidal"`` or ``"s_curve"``.
         jerk_counts_per_s3: Jerk limit for ``"s_curve"`` (counts/s^3).
         start_counts: Position at rest before the move (counts).
@@ -57,6 +58,10 @@ class Move:
                 "an 's_curve' move needs jerk_counts_per_s3 > 0; "
                 f"got jerk_counts_per_s3={self.jerk_counts_per_s3!r}."
             )
+
+    def settle_ticks(self, sample_time_s: float) -> int:
+        """:attr:`settle_s` in whole servo cycles of ``sample_time_s`` (rounded)."""
+        return round(self.settle_s / sample_time_s)
 
 
 class ChipFamily(abc.ABC):
@@ -102,6 +107,28 @@ class ChipFamily(abc.ABC):
     response_function: Any = None
     polynomial_function: Any = None
 
+    def __init_subclass__(
+        cls, *, export: Any = None, kernel: Any = None, response: Any = None, **kw: Any
+    ) -> None:
+        """Take a family's modules: ``class PMDFamily(ChipFamily, export=..., kernel=...,
+        response=...)`` sets :attr:`export_module`, :attr:`formats` and
+        :attr:`file_extensions` (from the export module's ``FORMATS`` and
+        ``FILE_EXTENSIONS``), :meth:`new_state` (the kernel module's), and
+        :attr:`response_function` / :attr:`polynomial_function` (the response module's
+        ``filter_response`` / ``filter_polynomials``); and :attr:`code` from :attr:`name`."""
+        super().__init_subclass__(**kw)
+        if export is not None:
+            cls.export_module = export
+            cls.formats = export.FORMATS
+            cls.file_extensions = export.FILE_EXTENSIONS
+        if kernel is not None:
+            cls.new_state = staticmethod(kernel.new_state)  # type: ignore[method-assign]
+        if response is not None:
+            cls.response_function = staticmethod(response.filter_response)
+            cls.polynomial_function = staticmethod(response.filter_polynomials)
+        if "name" in cls.__dict__:
+            cls.code = FAMILY_CODES[cls.name]
+
     @staticmethod
     @abc.abstractmethod
     def parameter_space(model: str) -> ParameterSpace:
@@ -116,6 +143,12 @@ class ChipFamily(abc.ABC):
     def profile(self, move: Move, sample_time_s: float) -> Any:
         """The chip's own profile for ``move``: int64 ``position``/``velocity``/
         ``acceleration`` arrays, one entry per servo cycle, and ``start``."""
+
+    @property
+    def registers(self) -> Any:
+        """The family's register table (:class:`~servogym.chips._registers.RegisterTable`):
+        every register with its range, default, unit, source and file spellings."""
+        return self.params_type.TABLE
 
     def make_params(self, model: str, values: Mapping[str, Any] | None = None) -> Any:
         """A validated parameter set: the model's defaults updated with ``values``."""

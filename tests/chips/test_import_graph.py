@@ -93,6 +93,7 @@ def test_the_graph_sees_the_imports():
     graph = _graph()
     assert "servogym.chips.pmd" in graph["servogym.chips._family"]
     assert "servogym.chips._base" in graph["servogym.chips.pmd._family"]
+    assert "servogym.chips._registers" in graph["servogym.chips.pmd._params"]
 
 
 def test_a_circle_is_found():

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from servogym.chips._base import FAMILY_CODES, ChipFamily, Move
+from servogym.chips._base import ChipFamily, Move
 from servogym.chips._space import ParameterError
 from servogym.chips.parker6k import _export, _kernel, _profile, _response
 from servogym.chips.parker6k._params import (
@@ -22,24 +22,17 @@ from servogym.chips.parker6k._params import (
 from servogym.chips.parker6k._reference import Parker6kReferenceFilter
 
 
-class Parker6kFamily(ChipFamily):
+class Parker6kFamily(ChipFamily, export=_export, kernel=_kernel, response=_response):
     """Parker Compumotor 6000-series servo controllers (6250, 6K): PIV&F with gain sets."""
 
     name = "parker6k"
-    code = FAMILY_CODES["parker6k"]
     models = CHIP_MODELS
     params_type = Parker6kParams
     assumptions_type = Parker6kAssumptions
     env_name = "Parker6K"
     reference_type = Parker6kReferenceFilter
-    export_module = _export
-    formats = _export.FORMATS
-    file_extensions = _export.FILE_EXTENSIONS
     error_trip_off = MappingProxyType({"smper": 0})  # PK-A8: SMPER0 disables the check
     parameter_space = staticmethod(parameter_space)
-    new_state = staticmethod(_kernel.new_state)
-    response_function = staticmethod(_response.filter_response)
-    polynomial_function = staticmethod(_response.filter_polynomials)
 
     def formats_for(self, model: str) -> tuple[str, ...]:
         """JSON and the 6250 form for every model; the axis-prefixed 6K form for the 6K."""
@@ -60,7 +53,7 @@ class Parker6kFamily(ChipFamily):
             ssfr,
             kind=move.kind,
             jerk_counts_per_s3=move.jerk_counts_per_s3,
-            settle_ticks=round(move.settle_s / sample_time_s),
+            settle_ticks=move.settle_ticks(sample_time_s),
         )
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from types import MappingProxyType
 from typing import Any
 
-from servogym.chips._base import FAMILY_CODES, ChipFamily, Move
+from servogym.chips._base import ChipFamily, Move
 from servogym.chips.pmac import _export, _kernel, _profile, _response
 from servogym.chips.pmac._params import (
     CHIP_MODELS,
@@ -16,23 +16,16 @@ from servogym.chips.pmac._params import (
 from servogym.chips.pmac._reference import PMACReferenceFilter
 
 
-class PMACFamily(ChipFamily):
+class PMACFamily(ChipFamily, export=_export, kernel=_kernel, response=_response):
     """Delta Tau Turbo PMAC2 and Geo Brick LV: PID + feed-forward + notch (Ixx30..Ixx39)."""
 
     name = "pmac"
-    code = FAMILY_CODES["pmac"]
     models = CHIP_MODELS
     params_type = PMACParams
     assumptions_type = PMACAssumptions
     reference_type = PMACReferenceFilter
-    export_module = _export
-    formats = _export.FORMATS
-    file_extensions = _export.FILE_EXTENSIONS
     error_trip_off = MappingProxyType({"fatal_following_error_limit": 0})  # Ixx11 = 0 disables it
     parameter_space = staticmethod(parameter_space)
-    new_state = staticmethod(_kernel.new_state)
-    response_function = staticmethod(_response.filter_response)
-    polynomial_function = staticmethod(_response.filter_polynomials)
 
     def native_latency_s(self, params: Any, choice: str) -> float:
         """PMAC-A14 ``"phase_edge"``: one phase period, servo period / (I7002 + 1)."""
@@ -49,7 +42,7 @@ class PMACFamily(ChipFamily):
             move.max_acceleration_counts_per_s2,
             sample_time_s,
             jerk_counts_per_s3=move.jerk_counts_per_s3 if move.kind == "s_curve" else None,
-            settle_ticks=round(move.settle_s / sample_time_s),
+            settle_ticks=move.settle_ticks(sample_time_s),
         )
 
 
