@@ -1,17 +1,22 @@
 """Tuner overhead: sampler and storage time as a share of evaluation time (docs/autotune.md).
 
-100 TPE trials of the `make demo` problem (MC2100, vertical-axis, the plant's moves), one
-evaluation thread, on each storage; the ask time (sampler + storage writes of a new trial)
-and the tell time (storage writes of its result) against the summed evaluation time, all
-in CPU seconds of the threads that spend them (so neither the machine's other load nor the
-overlap of asking with evaluating changes the share; the wall time shows that overlap).
-Memory storage is the sampler alone; the journal file is the default of `servogym tune`.
+`--trials` trials of a tuner (`--tuner`, default TPE) on the `make demo` problem (MC2100,
+vertical-axis, the plant's moves), one evaluation thread, on each storage; the ask time
+(sampler + storage writes of a new trial), the sampler's own part of it, and the tell time
+(storage writes of its result) against the evaluation time, all in CPU seconds of the
+threads that spend them (so neither the machine's other load nor the overlap of asking with
+evaluating changes the share; the wall time shows that overlap). Memory storage is the
+sampler and Optuna's ask/tell alone; the journal file is the default of `servogym tune`.
 The default problem has the margin constraints on (as `servogym tune` does), so every
 evaluation also linearises the plant; `--no-margins` shows the share without them. Each
 storage runs `--repeat` times; the medians are printed.
 
-    .venv/bin/python experiments/bench_tuner_overhead.py [--trials 100] [--workers 1]
-        [--repeat 3] [--no-margins]
+The shares are per sampled trial against the mean evaluation: a tuner that also runs
+experiments or scores candidates itself (the model-based design of `safe`) has those
+evaluations in the evaluation mean and its sampled trials in the ask and tell columns.
+
+    .venv/bin/python experiments/bench_tuner_overhead.py [--tuner tpe] [--trials 100]
+        [--workers 1] [--repeat 3] [--storages memory,journal,sqlite] [--no-margins]
 """
 
 from __future__ import annotations
@@ -29,14 +34,16 @@ from servogym.sim import Evaluator, Scenario
 
 STORAGES = {
     "memory": lambda tmp: None,
-    "journal file (default)": lambda tmp: str(tmp / "study.journal"),
+    "journal": lambda tmp: str(tmp / "study.journal"),
     "sqlite": lambda tmp: f"sqlite:///{tmp / 'study.db'}",
 }
-"""Each storage measured, as its URL in a fresh temporary folder."""
+"""Each storage measured, as its URL in a fresh temporary folder (journal: the default)."""
 
 
-def measure(storage: str | None, trials: int, workers: int, margins: bool) -> dict[str, float]:
-    spent = [0.0]
+def measure(
+    tuner: str, storage: str | None, trials: int, workers: int, margins: bool
+) -> dict[str, float]:
+    spent = [0.0, 0]
     lock = threading.Lock()
 
     class TimedEvaluator(Evaluator):
@@ -45,6 +52,7 @@ def measure(storage: str | None, trials: int, workers: int, margins: bool) -> di
             result = super().evaluate(*args, **kwargs)
             with lock:
                 spent[0] += time.thread_time() - t0
+                spent[1] += 1
             return result
 
     scenario = Scenario("MC2100", "vertical-axis")
@@ -57,37 +65,58 @@ def measure(storage: str | None, trials: int, workers: int, margins: bool) -> di
                           constraints=constraints)  # fmt: skip
     with quiet_optuna():
         session = Session(problem, budget=trials, storage=storage, study_name="bench",
-                          tuner_name="tpe", n_workers=workers,
+                          tuner_name=tuner, n_workers=workers,
                           evaluator_factory=TimedEvaluator)  # fmt: skip
         t0 = time.perf_counter()
         with session:
-            get_tuner("tpe").run(session)
+            get_tuner(tuner).run(session)
         wall = time.perf_counter() - t0
     over = session.overhead()
-    return {"eval_s": spent[0], "wall_s": wall, **over}
+    sampled = sum(t.user_attrs.get("kind") == "sample" for t in session.trials())
+    return {"eval_s": spent[0], "n_eval": spent[1], "n_sampled": sampled, "wall_s": wall, **over}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tuner", default="tpe")
     parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--storages", default=",".join(STORAGES))
     parser.add_argument("--no-margins", dest="margins", action="store_false")
     args = parser.parse_args()
-    print(f"{args.trials} TPE trials, MC2100 vertical-axis, {args.workers} evaluation "
+    storages = [s.strip() for s in args.storages.split(",") if s.strip()]
+    for name in storages:
+        if name not in STORAGES:
+            parser.error(f"--storages takes names from {', '.join(STORAGES)}; got {name!r}")
+    get_tuner(args.tuner)  # an unknown name fails here, with close matches
+    print(f"{args.trials} {args.tuner} trials, MC2100 vertical-axis, {args.workers} evaluation "
           f"thread(s), margin constraints {'on' if args.margins else 'off'}, median of "
-          f"{args.repeat}")  # fmt: skip
-    print(f"{'storage':24} {'eval s':>7} {'ask s':>7} {'tell s':>7} {'share':>7} {'wall s':>7}")
-    for name, url_in in STORAGES.items():
+          f"{args.repeat}; per sampled trial, in ms of CPU")  # fmt: skip
+    print(f"{'storage':10} {'eval ms':>8} {'sampler':>8} {'ask ms':>8} {'tell ms':>8} "
+          f"{'sampler share':>14} {'(ask+tell) share':>17} {'wall s':>7}")  # fmt: skip
+    for name in storages:
         runs = []
         for _ in range(args.repeat):
             with tempfile.TemporaryDirectory() as tmp:
-                m = measure(url_in(Path(tmp)), args.trials, args.workers, args.margins)
-            m["share"] = (m["ask_s"] + m["tell_s"]) / m["eval_s"]
+                m = measure(args.tuner, STORAGES[name](Path(tmp)), args.trials, args.workers,
+                            args.margins)  # fmt: skip
+            n = max(m["n_sampled"], 1)
+            per_eval = m["eval_s"] / max(m["n_eval"], 1)
+            m = {
+                "eval_ms": 1e3 * per_eval,
+                "sampler_ms": 1e3 * m["sampler_s"] / n,
+                "ask_ms": 1e3 * m["ask_s"] / n,
+                "tell_ms": 1e3 * m["tell_s"] / n,
+                "sampler_share": m["sampler_s"] / n / per_eval,
+                "share": (m["ask_s"] + m["tell_s"]) / n / per_eval,
+                "wall_s": m["wall_s"],
+            }
             runs.append(m)
         med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
-        print(f"{name:24} {med['eval_s']:7.2f} {med['ask_s']:7.2f} {med['tell_s']:7.2f} "
-              f"{med['share']:7.1%} {med['wall_s']:7.2f}")  # fmt: skip
+        print(f"{name:10} {med['eval_ms']:8.2f} {med['sampler_ms']:8.2f} {med['ask_ms']:8.2f} "
+              f"{med['tell_ms']:8.2f} {med['sampler_share']:14.1%} {med['share']:17.1%} "
+              f"{med['wall_s']:7.1f}")  # fmt: skip
 
 
 if __name__ == "__main__":

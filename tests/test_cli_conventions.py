@@ -81,7 +81,7 @@ def test_tune_json_and_the_note_when_a_classical_tuner_stops_early(tmp_path):
     result = runner.invoke(app, [*args, "--budget", "3", "--out", str(tmp_path / "a"), "--json"])
     assert result.exit_code == 0, result.output
     summary = json.loads(result.stdout)
-    assert summary["n_trials"] == 3 and summary["tuner"] == "tpe"
+    assert summary["n_trials"] == 3 and summary["tuner"] == "safe"  # the default tuner
     result = runner.invoke(app, [*args, "--budget", "40", "--tuner", "model-based",
                                  "--out", str(tmp_path / "b")], terminal_width=300)  # fmt: skip
     assert result.exit_code == 0, result.output

@@ -12,8 +12,8 @@ from typing import Annotated
 import typer
 
 TUNER_HELP = (
-    "tpe, gp, cmaes, random, sobol (Optuna samplers), vendor-step, relay, model-based "
-    "(classical procedures)."
+    "safe (a safe trust-region search from the model-based design), tpe, gp, cmaes, random, "
+    "sobol (Optuna samplers), vendor-step, relay, model-based (classical procedures)."
 )
 
 
@@ -26,7 +26,10 @@ def tune_command(
         int, typer.Option("--budget", help="Evaluations (trials), experiments included.")
     ],
     out: Annotated[Path, typer.Option("--out", help="Run folder for every output file.")],
-    tuner: Annotated[str, typer.Option("--tuner", help=TUNER_HELP)] = "tpe",
+    tuner: Annotated[
+        str | None,
+        typer.Option("--tuner", help=TUNER_HELP, show_default="safe; tpe with --multi-objective"),
+    ] = None,
     plant_param: Annotated[
         list[str] | None,
         typer.Option("--plant-param", help="Fixed plant parameter NAME=VALUE (repeatable)."),
@@ -163,13 +166,20 @@ def tune_command(
     from servogym._input import mask_url
     from servogym.autotune._job import TuneConfig, parse_fix, parse_plant_params, tune
     from servogym.autotune._session import TuneError
-    from servogym.autotune._tuners import get_tuner, tuner_names
+    from servogym.autotune._tuners import (
+        DEFAULT_MULTI_OBJECTIVE_TUNER,
+        DEFAULT_TUNER,
+        get_tuner,
+        tuner_names,
+    )
     from servogym.calibrate import plant_values
     from servogym.chips._family import get_chip
     from servogym.chips._space import ParameterError
     from servogym.plants import get_plant, parse_plant_ranges
 
     console = Console()
+    if tuner is None:
+        tuner = DEFAULT_MULTI_OBJECTIVE_TUNER if multi_objective else DEFAULT_TUNER
     check_count("--budget", budget, high=MAX_BUDGET)
     check_count("--workers", workers, high=MAX_WORKERS)
     check_count("--robust", robust, high=MAX_ROBUST)

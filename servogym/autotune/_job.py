@@ -22,7 +22,7 @@ from servogym.autotune._session import (
     scored_trials,
 )
 from servogym.autotune._space import SearchSpace
-from servogym.autotune._tuners import OptunaTuner, get_tuner
+from servogym.autotune._tuners import DEFAULT_TUNER, OptunaTuner, get_tuner
 from servogym.chips._family import get_chip
 from servogym.sim._check import CheckLimits, CheckReport, check_params, write_bode
 from servogym.sim._scenario import Evaluator, MoveSpec, Scenario
@@ -186,7 +186,8 @@ class TuneConfig:
         plant: Plant family.
         out: Run folder.
         budget: Evaluations.
-        tuner: Tuner name.
+        tuner: Tuner name (default :data:`~servogym.autotune._tuners.DEFAULT_TUNER`,
+            ``"safe"``; it is single objective: a multi-objective study names another).
         plant_params: Fixed plant parameters (``{"payload_kg": 3.0}``).
         plant_ranges: Ranges the robust draws take parameters from
             (``{"payload_kg": (0.5, 2.0)}``; ``Scenario.plant_ranges``).
@@ -216,14 +217,16 @@ class TuneConfig:
         force: Write the hardware files even when the check fails.
         design_start: For an Optuna tuner on a new study without ``warm_start``: first run
             the model-based tuner (:data:`DESIGN_BUDGET` simulations, not counted in
-            ``budget``) and start the study from its best design.
+            ``budget``) and start the study from its best design (the ``safe`` tuner
+            too; without a warm start, as in :func:`run_study`, it runs a design inside
+            its budget).
     """
 
     chip: str
     plant: str
     out: Path
     budget: int
-    tuner: str = "tpe"
+    tuner: str = DEFAULT_TUNER
     plant_params: Mapping[str, float] = dataclasses.field(default_factory=dict)
     plant_ranges: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     seed: int = 0

@@ -534,20 +534,38 @@ def _redact(url: str) -> str:
     return mask_url(url)
 
 
-def per_trial_sampler(make_sampler: Callable[[int], Any], seed: int) -> Any:
+def per_trial_sampler(
+    make_sampler: Callable[[int], Any], seed: int, timer: Callable[[float], None] | None = None
+) -> Any:
     """A sampler that asks trial ``n`` with ``make_sampler(trial_seed(seed, n))``.
 
     The trial's number is known only once the storage has created it, so the inner sampler
-    is built in ``before_trial``; every other call goes to it.
+    is built in ``before_trial``; every other call goes to it. ``timer``, if given, is
+    called with the CPU seconds of the calling thread spent in each of these calls (the
+    sampler's own overhead, building it included).
     """
     import optuna
     from optuna.search_space import IntersectionSearchSpace
+
+    clock = time.thread_time
+
+    def timed(fn: Callable[..., Any]) -> Callable[..., Any]:
+        def call(*args: Any) -> Any:
+            t0 = clock()
+            try:
+                return fn(*args)
+            finally:
+                if timer is not None:
+                    timer(clock() - t0)
+
+        return call
 
     class _PerTrialSeeded(optuna.samplers.BaseSampler):
         def __init__(self) -> None:
             self._inner: Any = None
             self._spaces: dict[Any, Any] = {}
 
+        @timed
         def before_trial(self, study: Any, trial: Any) -> None:
             self._inner = make_sampler(trial_seed(seed, trial.number))
             # The search space of the study, computed incrementally once for all trials
@@ -558,15 +576,19 @@ def per_trial_sampler(make_sampler: Callable[[int], Any], seed: int) -> Any:
                 self._inner._search_space = self._spaces.setdefault(key, space)
             self._inner.before_trial(study, trial)
 
+        @timed
         def infer_relative_search_space(self, study: Any, trial: Any) -> Any:
             return self._inner.infer_relative_search_space(study, trial)
 
+        @timed
         def sample_relative(self, study: Any, trial: Any, search_space: Any) -> Any:
             return self._inner.sample_relative(study, trial, search_space)
 
+        @timed
         def sample_independent(self, study: Any, trial: Any, name: str, dist: Any) -> Any:
             return self._inner.sample_independent(study, trial, name, dist)
 
+        @timed
         def after_trial(self, study: Any, trial: Any, state: Any, values: Any) -> None:
             if self._inner is not None:
                 self._inner.after_trial(study, trial, state, values)
@@ -718,6 +740,7 @@ class Session:
         self._uncounted: list[int] = []
         self._tell_time_s = 0.0
         self._ask_time_s = 0.0
+        self._sampler_time_s = 0.0
 
     # ---------------------------------------------------------------- the study
 
@@ -996,7 +1019,7 @@ class Session:
             make_sampler: Builds the sampler from a seed (called for every trial, with the
                 seed of :func:`trial_seed` for the trial's number).
         """
-        self.study.sampler = per_trial_sampler(make_sampler, self.problem.seed)
+        self.study.sampler = per_trial_sampler(make_sampler, self.problem.seed, self._time_sampler)
         dists = self.problem.space.distributions()
         waited = False
         while True:
@@ -1212,9 +1235,16 @@ class Session:
         return best_trial(self.trials(), self.problem.multi_objective)
 
     def overhead(self) -> dict[str, float]:
-        """CPU seconds this worker's main thread spent asking (sampler and storage) and
-        telling (storage)."""
-        return {"ask_s": self._ask_time_s, "tell_s": self._tell_time_s}
+        """CPU seconds this worker's main thread spent asking (sampler and storage), in the
+        sampler alone (part of asking), and telling (storage)."""
+        return {
+            "ask_s": self._ask_time_s,
+            "sampler_s": self._sampler_time_s,
+            "tell_s": self._tell_time_s,
+        }
+
+    def _time_sampler(self, seconds: float) -> None:
+        self._sampler_time_s += seconds
 
 
 def scored_trials(trials: Sequence[Any]) -> list[Any]:

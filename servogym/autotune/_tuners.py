@@ -157,6 +157,14 @@ class SobolTuner(OptunaTuner):
 TUNERS: dict[str, type[Tuner]] = {}
 """Every tuner class by name, in the order ``servogym tune --tuner`` lists them."""
 
+DEFAULT_TUNER = "safe"
+"""The tuner ``servogym tune`` uses unless ``--tuner`` names another
+(:class:`servogym.autotune._safe.SafeTuner`; single objective, so ``--multi-objective``
+defaults to :data:`DEFAULT_MULTI_OBJECTIVE_TUNER`)."""
+
+DEFAULT_MULTI_OBJECTIVE_TUNER = "tpe"
+"""The tuner ``servogym tune --multi-objective`` uses unless ``--tuner`` names another."""
+
 
 def register_tuner(cls: type[Tuner]) -> type[Tuner]:
     """Add a tuner class to :data:`TUNERS` (usable as a class decorator)."""
@@ -189,4 +197,5 @@ def tuner_names() -> list[str]:
 
 
 def _load_classical() -> None:
-    import servogym.autotune._classical  # noqa: F401  (registers the classical tuners)
+    import servogym.autotune._classical
+    import servogym.autotune._safe  # noqa: F401  (registers the default tuner)

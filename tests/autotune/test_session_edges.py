@@ -347,13 +347,14 @@ def test_storages_default_to_a_5_s_heartbeat_and_a_20_s_grace_period(tmp_path):
 
 def test_the_overhead_is_the_main_threads_cpu_time_spent_asking_and_telling():
     s, _ = _session(6, batch_size=3)
-    assert s.overhead() == {"ask_s": 0.0, "tell_s": 0.0}
+    assert s.overhead() == {"ask_s": 0.0, "sampler_s": 0.0, "tell_s": 0.0}
     with s:
         t0 = time.thread_time()
         s.run_sampler(_random)
         spent = time.thread_time() - t0
     o = s.overhead()
     assert o["ask_s"] > 0 and o["tell_s"] > 0 and o["ask_s"] + o["tell_s"] <= spent
+    assert 0 < o["sampler_s"] < o["ask_s"]  # the sampler's own part of asking
     # A classical tuner's candidates are added, not asked: telling time only.
     s, _ = _session(2)
     values = register_values(s.problem.scenario.default_params())

@@ -17,10 +17,11 @@ from .helpers import short_problem
 TUNER_NAMES = tuner_names()
 OPTUNA = ["tpe", "gp", "cmaes", "random", "sobol"]
 CLASSICAL = ["vendor-step", "relay", "model-based"]
+DEFAULT = ["safe"]  # the default tuner (test_safe_tuner.py)
 
 
 def test_the_registry_holds_every_tuner_of_the_issue():
-    assert set(TUNER_NAMES) == set(OPTUNA + CLASSICAL)
+    assert set(TUNER_NAMES) == set(OPTUNA + CLASSICAL + DEFAULT)
 
 
 class Recorder:

@@ -1,0 +1,525 @@
+"""The default tuner: a safe trust-region search that starts from the model-based design.
+
+A tuner an engineer would let run on a real axis must not spend its budget on sets that
+make the axis diverge, saturate, lose its following error or its stability margins. Blind
+samplers do (TPE spent 17 of 20 evaluations on unsafe sets at budget 20 in servobench-v0).
+:class:`SafeTuner` searches only where the evidence of earlier evaluations says it is safe:
+
+1. **Start from a design.** Without a warm start it runs the model-based procedure
+   (:class:`~servogym.autotune.ModelBasedTuner`: two identification moves and seven
+   candidate bandwidths) inside its budget; every one of those runs counts, as it would on
+   a machine. With a warm start (``--warm-start``) it starts from that set.
+2. **A trust region around the best safe set** (TuRBO's rule, Eriksson et al., 2019): a box
+   of half-width ``r`` in the unit cube, centred on the best feasible trial. ``r`` doubles
+   after :attr:`SafeTuner.success_tolerance` improving trials in a row, halves after
+   :attr:`SafeTuner.failure_tolerance` trials without improvement and after every unsafe
+   trial. ``r`` is a function of the study's trials in number order, never stored.
+3. **A safety model on the constraints** (SafeOpt's rule, Sui et al., 2015): one Gaussian
+   process per constraint, on the constraint values of the trials near the centre scaled to
+   their limit (a gain margin 3 dB short of 6 dB reads 0.5); a candidate is proposed only
+   when every constraint's upper confidence bound ``mean + beta * std`` is below its limit.
+   The prior mean is the limit itself, so far from the evidence nothing is safe and the
+   safe set grows only as evaluations show slack.
+4. **Cheap proposals.** 256 random perturbations of the centre inside the box (each
+   register perturbed with probability ``max(0.5, 2/d)``), scored by the same Gaussian
+   process on the log cost: the safe candidate with the lowest lower confidence bound is
+   proposed. Pending trials of the batch are added to the model at their predicted values
+   (the kriging believer), so a batch spreads out. All in NumPy on at most
+   :attr:`SafeTuner.n_local` trials: a fraction of a millisecond per trial, against an
+   evaluation of 4 to 20 ms.
+
+The Gaussian processes share one Matern-5/2 kernel on the unit cube; its length scale is
+the maximum of the marginal likelihood of the cost and margin values over a grid. Seeded:
+trial ``n`` is asked with the seed of :func:`~servogym.autotune.trial_seed`, so the same
+seed gives the same study (docs/autotune.md, "The default tuner").
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from servogym.autotune._session import Session, TuneError
+from servogym.autotune._tuners import OptunaTuner, register_tuner
+
+logger = logging.getLogger(__name__)
+
+_SQRT5 = math.sqrt(5.0)
+
+LENGTH_SCALES = (0.05, 0.1, 0.2, 0.4, 0.8)
+"""Kernel length scales (unit-cube units, a cube of side 2) the likelihood chooses from."""
+
+BINARY_CONSTRAINTS = ("diverged",)
+"""Constraints that are counts (0 when met): modelled as -1 (met) or +1 (violated)."""
+
+
+def _matern52(a: np.ndarray, b: np.ndarray, ell: float) -> np.ndarray:
+    """Matern-5/2 correlation between the rows of ``a`` (n x d) and ``b`` (m x d)."""
+    d2 = np.maximum((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * a @ b.T, 0.0)
+    r = _SQRT5 * np.sqrt(d2) / ell
+    return (1.0 + r + r * r / 3.0) * np.exp(-r)
+
+
+class _GP:
+    """Gaussian processes with one kernel for several outputs (columns of ``y``).
+
+    Args:
+        x: Inputs, n x d.
+        y: Outputs, n x k.
+        prior_mean: Prior mean of each output (k).
+        min_amplitude: Smallest prior standard deviation of each output (k); the amplitude
+            is otherwise the maximum-likelihood one.
+        ell: Length scale.
+    """
+
+    jitter = 1e-6
+
+    def __init__(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        prior_mean: np.ndarray,
+        min_amplitude: np.ndarray,
+        ell: float,
+    ) -> None:
+        # NumPy only: at these sizes (n <= 56) SciPy's triangular solves cost more in
+        # thread start-up than in arithmetic, and so would a threaded BLAS call.
+        self.x, self.y, self.ell = x, y, ell
+        self.mean, self.min_amplitude = prior_mean, min_amplitude
+        n = len(x)
+        chol = np.linalg.cholesky(_matern52(x, x, ell) + self.jitter * np.eye(n))
+        self.linv = np.linalg.inv(chol)
+        resid = y - prior_mean
+        self.alpha = self.linv.T @ (self.linv @ resid)
+        ml_var = (resid * self.alpha).sum(0) / n
+        self.amplitude = np.maximum(np.sqrt(np.maximum(ml_var, 0.0)), min_amplitude)
+        self.log_likelihood = (
+            -0.5 * n * np.log(np.maximum(ml_var, 1e-12)) - np.log(np.diag(chol)).sum()
+        )
+
+    def predict(self, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean (m x k) and standard deviation (m x k) at the rows of ``xs``."""
+        ks = _matern52(xs, self.x, self.ell)
+        mean = self.mean + ks @ self.alpha
+        v = self.linv @ ks.T
+        var = np.clip(1.0 - (v * v).sum(0), 0.0, 1.0)
+        return mean, np.sqrt(var)[:, None] * self.amplitude[None, :]
+
+    def with_points(self, xs: np.ndarray) -> _GP:
+        """The same GP given the points ``xs`` at its predicted means (kriging believer)."""
+        mean, _ = self.predict(xs)
+        y = np.vstack([self.y, mean])
+        return _GP(np.vstack([self.x, xs]), y, self.mean, self.min_amplitude, self.ell)
+
+
+class _Row:
+    """One finished trial as the model sees it."""
+
+    __slots__ = ("cons", "kind", "log_cost", "number", "safe", "sample", "x")
+
+    def __init__(self, number: int, kind: str, x: np.ndarray, log_cost: float,
+                 cons: np.ndarray, safe: bool) -> None:  # fmt: skip
+        self.number, self.kind, self.x = number, kind, x
+        self.log_cost, self.cons, self.safe = log_cost, cons, safe
+        self.sample = kind == "sample"
+
+
+class _Model:
+    """What the safe sampler knows: the study's finished trials, scaled, and the rules.
+
+    Shared by the per-trial samplers of one session (it caches each finished trial's row;
+    everything it proposes is a function of the finished trials, the pending ones and the
+    trial's seed only).
+    """
+
+    def __init__(self, tuner: SafeTuner, session: Session) -> None:
+        problem = session.problem
+        self.tuner = tuner
+        self.space = problem.space
+        self.unit_names = list(problem.space.unit_names)
+        self.dim = len(self.unit_names)
+        c = problem.constraints
+        self.constraints_on = bool(c.enabled)
+        self.scales: dict[str, float] = {
+            "max_following_error": max(float(session.fe_limit), 1.0),
+            "saturation_fraction": max(float(c.max_saturation), 0.01),
+            "gain_margin": max(float(c.min_gain_margin_db or 0.0), 3.0),
+            "phase_margin": max(float(c.min_phase_margin_deg or 0.0), 15.0),
+        }
+        self.names: list[str] | None = None
+        self.rows: dict[int, _Row] = {}
+        self._fit_cache: tuple[tuple[int, ...], _GP] | None = None
+        base = {
+            **self.space.family.parameter_space(self.space.chip_model).defaults(),
+            **self.space.fixed,
+        }
+        start = session.warm_start or base
+        self.start = self._unit(self.space.to_unit(start))
+
+    def _unit(self, params: Mapping[str, float]) -> np.ndarray:
+        return np.array([float(params[u]) for u in self.unit_names])
+
+    def _constraint_names(self, trial: Any) -> list[str]:
+        if self.names is None:
+            self.names = sorted(trial.constraints) if self.constraints_on else ["diverged"]
+        return self.names
+
+    def _row(self, t: Any) -> _Row | None:
+        kind = t.user_attrs.get("kind", "sample")
+        if kind == "experiment" or not all(u in t.params for u in self.unit_names):
+            return None
+        x = self._unit(t.params)
+        if t.state.name == "COMPLETE":
+            outcome = t.user_attrs.get("outcome", {})
+            diverged = float(outcome.get("n_diverged", 0))
+            values = dict(t.constraints) if self.constraints_on else {}
+            values.setdefault("diverged", diverged)
+            names = self._constraint_names(t)
+            cons = np.array([self._scaled(n, values.get(n, 0.0)) for n in names])
+            safe = diverged == 0 and all(v <= 0 for v in t.constraints.values())
+            cost = float(t.values[0])
+            log_cost = math.log(max(cost, 1e-12)) if math.isfinite(cost) else math.nan
+            return _Row(t.number, kind, x, log_cost, cons, safe)
+        if t.state.name == "FAIL" and "error" in t.user_attrs:
+            # A set a family's cross-register rule refuses: never proposed again.
+            return _Row(t.number, kind, x, math.nan, np.array([]), False)
+        return None
+
+    def _scaled(self, name: str, value: float) -> float:
+        if name in BINARY_CONSTRAINTS:
+            return 1.0 if value > 0 else -1.0
+        return float(np.clip(value / self.scales.get(name, 1.0), -2.0, 2.0))
+
+    def update(self, trials: list[Any]) -> tuple[list[_Row], list[np.ndarray]]:
+        """The finished trials' rows in number order and the pending trials' points."""
+        pending = []
+        for t in trials:
+            if t.number in self.rows:
+                continue
+            if t.state.is_finished():
+                row = self._row(t)
+                if row is not None:
+                    self.rows[t.number] = row
+            elif t.state.name == "RUNNING" and all(u in t.params for u in self.unit_names):
+                pending.append(self._unit(t.params))
+        return [self.rows[n] for n in sorted(self.rows)], pending
+
+    # ---------------------------------------------------------------- the trust region
+
+    def trust_region(self, rows: list[_Row]) -> tuple[float, _Row | None]:
+        """Replay the trials in number order: the radius and the centre (best safe row)."""
+        tuner = self.tuner
+        r = tuner.initial_radius
+        fail_tol = max(tuner.failure_tolerance, self.dim // 2)
+        best: _Row | None = None
+        wins = losses = 0
+        for row in rows:
+            better = (
+                row.safe
+                and not math.isnan(row.log_cost)
+                and (best is None or row.log_cost < best.log_cost - tuner.min_improvement)
+            )
+            if row.sample:
+                if not row.safe:
+                    r, wins, losses = max(r / 2, tuner.min_radius), 0, 0
+                elif better:
+                    wins, losses = wins + 1, 0
+                    if wins >= tuner.success_tolerance:
+                        r, wins = min(2 * r, tuner.max_radius), 0
+                else:
+                    wins, losses = 0, losses + 1
+                    if losses >= fail_tol:
+                        r, losses = max(r / 2, tuner.min_radius), 0
+            if better:
+                best = row
+        return r, best
+
+    # ---------------------------------------------------------------- proposals
+
+    def propose(self, trials: list[Any], rng: np.random.Generator) -> np.ndarray:
+        """The unit-cube point of the next trial."""
+        rows, pending = self.update(trials)
+        radius, best = self.trust_region(rows)
+        scored = [r for r in rows if not math.isnan(r.log_cost)]
+        if best is None and not scored:
+            # Nothing evaluated yet: the start (the chip's defaults or the warm start).
+            return self.start.copy()
+        if best is None:  # nothing safe yet: head for the least violation
+            centre = min(scored, key=lambda r: (float(r.cons.max()), r.log_cost)).x
+        else:
+            centre = best.x
+        gp = self._fitted(self._local(rows, centre))
+        if pending:
+            gp = gp.with_points(np.array(pending))
+        fallback: tuple[float, np.ndarray] | None = None
+        for attempt in range(4):
+            cands = self._candidates(centre, radius / 2**attempt, rng)
+            pick, least = self._choose(gp, cands, feasible=best is not None)
+            if pick is not None:
+                return pick
+            if fallback is None or least[0] < fallback[0]:
+                fallback = least
+        # Nothing predicted safe even at 1/8 of the radius: the likeliest safe candidate.
+        return fallback[1] if fallback is not None else centre.copy()
+
+    def _local(self, rows: list[_Row], centre: np.ndarray) -> list[_Row]:
+        """The :attr:`SafeTuner.n_local` rows nearest the centre (unique points)."""
+        seen: dict[bytes, _Row] = {}
+        for r in rows:
+            seen.setdefault(r.x.tobytes(), r)
+        uniq = list(seen.values())
+        if len(uniq) > self.tuner.n_local:
+            d = np.array([float(((r.x - centre) ** 2).sum()) for r in uniq])
+            keep = np.argsort(d, kind="stable")[: self.tuner.n_local]
+            uniq = [uniq[i] for i in sorted(keep)]
+        return uniq
+
+    def _candidates(self, centre: np.ndarray, radius: float, rng: np.random.Generator) -> Any:
+        n, d = self.tuner.n_candidates, self.dim
+        mask = rng.random((n, d)) < max(0.5, min(1.0, 2.0 / d))
+        mask[np.arange(n), rng.integers(0, d, n)] = True  # at least one register moves
+        step = rng.uniform(-1.0, 1.0, (n, d)) * radius
+        return np.clip(centre + mask * step, -1.0, 1.0)
+
+    def _fitted(self, data: list[_Row]) -> _GP:
+        """The GP of the data rows (cached: the asks of one batch share their data)."""
+        key = tuple(r.number for r in data)
+        if self._fit_cache is not None and self._fit_cache[0] == key:
+            return self._fit_cache[1]
+        tuner = self.tuner
+        x = np.array([r.x for r in data])
+        names = self.names or []
+        n_cons = len(names)
+        costs = np.array([r.log_cost for r in data])
+        worst = np.nanmax(costs) if np.isfinite(costs).any() else 0.0
+        costs = np.where(np.isnan(costs), worst, costs)  # a refused set: the worst cost
+        cons = np.array(
+            [r.cons if len(r.cons) == n_cons else np.ones(n_cons) for r in data]
+        ).reshape(len(data), n_cons)
+        y = np.column_stack([costs, cons])
+        binary = np.array([n in BINARY_CONSTRAINTS for n in names], bool)
+        prior = np.concatenate([[float(costs.mean())], np.zeros(n_cons)])
+        min_amp = np.concatenate(
+            [[1e-3], np.where(binary, tuner.binary_amplitude, tuner.min_amplitude)]
+        )
+        if len(x) < 3:
+            gp = _GP(x, y, prior, min_amp, tuner.default_length_scale)
+        else:  # the length scale of the largest likelihood of the continuous outputs
+            fits = [_GP(x, y, prior, min_amp, ell) for ell in LENGTH_SCALES]
+            keep = np.concatenate([[True], ~binary])
+            gp = max(fits, key=lambda g: float(g.log_likelihood[keep].sum()))
+        self._fit_cache = (key, gp)
+        return gp
+
+    def _choose(
+        self, gp: _GP, cands: np.ndarray, feasible: bool
+    ) -> tuple[np.ndarray | None, tuple[float, np.ndarray]]:
+        """The safe candidate with the lowest cost bound (``None``: none is safe), and the
+        candidate likeliest to be safe with its largest constraint bound."""
+        tuner = self.tuner
+        mean, std = gp.predict(cands)
+        n_cons = mean.shape[1] - 1
+        if not n_cons:
+            return cands[int(np.argmin(mean[:, 0] - tuner.kappa * std[:, 0]))], (0.0, cands[0])
+        upper = (mean[:, 1:] + tuner.beta * std[:, 1:]).max(1)
+        i = int(np.argmin(upper))
+        least = (float(upper[i]), cands[i])
+        if not feasible:  # nothing safe known: the least predicted violation
+            return cands[int(np.argmin(mean[:, 1:].max(1)))], least
+        safe = upper <= 0.0
+        if not safe.any():
+            return None, least
+        lcb = mean[:, 0] - tuner.kappa * std[:, 0]
+        lcb[~safe] = np.inf
+        return cands[int(np.argmin(lcb))], least
+
+
+def _sampler_class() -> type:
+    import optuna
+
+    class _SafeSampler(optuna.samplers.BaseSampler):
+        """Asks one trial: the model's proposal with this trial's seed."""
+
+        def __init__(self, model: _Model, seed: int) -> None:
+            self._model = model
+            self._seed = seed
+
+        def infer_relative_search_space(self, study: Any, trial: Any) -> dict[str, Any]:
+            return self._model.space.distributions()
+
+        def sample_relative(self, study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
+            if not search_space:
+                return {}
+            trials = study._get_trials(deepcopy=False, use_cache=True)
+            x = self._model.propose(trials, np.random.default_rng(self._seed))
+            return {u: float(v) for u, v in zip(self._model.unit_names, x, strict=True)}
+
+        def sample_independent(self, study: Any, trial: Any, name: str, dist: Any) -> Any:
+            # Only reached for a parameter outside the space (never in a servogym study).
+            return float(np.random.default_rng(self._seed).uniform(dist.low, dist.high))
+
+    return _SafeSampler
+
+
+@register_tuner
+class SafeTuner(OptunaTuner):
+    """The default tuner of ``servogym tune``: a safe trust-region search from the
+    model-based design (module docstring; docs/autotune.md, "The default tuner").
+
+    Single objective. Every evaluation goes through the session (the design's experiments
+    and candidates too), so the budget counts every run of the axis.
+    """
+
+    name = "safe"
+    supports_multi_objective = False
+
+    initial_radius = 0.05
+    """Half-width of the first trust region (the unit cube has side 2)."""
+    max_radius = 0.4
+    """Largest half-width."""
+    min_radius = 1.0 / 256
+    """Smallest half-width."""
+    success_tolerance = 2
+    """Improving trials in a row that double the radius."""
+    failure_tolerance = 4
+    """Trials without improvement that halve the radius (at least half the dimension)."""
+    min_improvement = 1e-3
+    """Relative improvement of the cost (in log) that counts as one."""
+    beta = 2.0
+    """Safety: every constraint's mean + beta * std must be within its limit."""
+    kappa = 1.0
+    """Exploration of the cost: the lowest mean - kappa * std among safe candidates."""
+    n_candidates = 256
+    """Random candidates scored per trial."""
+    n_local = 48
+    """Trials nearest the centre the Gaussian processes see."""
+    min_amplitude = 0.5
+    """Smallest prior std of a scaled constraint (0.5: 3 dB of a 6 dB gain margin)."""
+    binary_amplitude = 0.5
+    """Prior std of a count constraint (divergence) read as -1 / +1."""
+    default_length_scale = 0.2
+    """Length scale while fewer than three trials are known."""
+    design_first = 3
+    """The model-based candidate scored first (0: the fastest of seven bandwidths)."""
+
+    def run(self, session: Session) -> None:
+        if session.warm_start is None:
+            self._design(session)
+        else:
+            session.evaluate_warm_start()
+        session.run_sampler(lambda seed: self.make_sampler(seed, session))
+
+    def make_sampler(self, seed: int, session: Session) -> Any:
+        # One model per session, shared by its per-trial samplers (it caches the rows).
+        cached = getattr(self, "_model", None)
+        if cached is None or cached[0] is not session:
+            cached = self._model = (session, _Model(self, session))
+        return _sampler_class()(cached[1], seed)
+
+    def _design(self, session: Session) -> None:
+        """The model-based design inside the budget, unless the study is past it."""
+        from servogym.autotune._classical import ModelBasedTuner
+
+        if any(t.user_attrs.get("kind") == "sample" for t in session.trials()):
+            return  # the study went on without a design (a smaller budget before)
+        if session.budget < ModelBasedTuner.min_budget:
+            return
+        try:
+            ModelBasedTuner().run(_LineSearchSession(session, self))
+        except TuneError as exc:  # no gain map for the family, or no identification
+            logger.info("safe: no model-based design (%s); starting from the chip defaults", exc)
+
+
+class _LineSearchSession:
+    """The session as the model-based procedure sees it inside :class:`SafeTuner`: its
+    candidate bandwidths (fastest first) are scored one at a time, a safe line search.
+
+    It starts at the middle bandwidth :attr:`SafeTuner.design_first` and walks towards
+    faster loops while each step is safe and better, else towards slower ones; it stops at
+    the first unsafe or worse step, and does not take a step whose constraints, extrapolated
+    linearly from the last two steps, would be violated. Every other attribute is the
+    session's own.
+    """
+
+    def __init__(self, session: Session, tuner: SafeTuner) -> None:
+        self._session = session
+        self._tuner = tuner
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._session, name)
+
+    def candidates(self, sets: list[tuple[Mapping[str, int], str]]) -> list[Any]:
+        session, problem = self._session, self._session.problem
+        n = len(sets)
+        if n == 0:
+            return []
+        done: dict[int, Any] = {}
+
+        def score(i: int) -> Any:
+            if session.remaining < 1:
+                return None
+            done[i] = session.candidates([sets[i]])[0]
+            return done[i]
+
+        def safe(o: Any) -> bool:
+            c = (
+                problem.constraint_values(o, session.fe_limit)
+                if problem.constraints.enabled
+                else {}
+            )
+            return o.n_diverged == 0 and all(v <= 0 for v in c.values())
+
+        def scaled(o: Any) -> dict[str, float]:
+            if not problem.constraints.enabled:
+                return {}
+            c = problem.constraint_values(o, session.fe_limit)
+            bound = {"max_following_error": session.fe_limit,
+                     "saturation_fraction": max(problem.constraints.max_saturation, 0.01),
+                     "gain_margin": 6.0, "phase_margin": 30.0}  # fmt: skip
+            return {k: v / bound[k] for k, v in c.items() if k in bound}
+
+        def walk(start: int, step: int) -> None:
+            i = start
+            while 0 <= i + step < n and session.remaining >= 1:
+                prev, prev2 = done.get(i), done.get(i - step)
+                if prev is None or not safe(prev):
+                    return
+                if prev2 is not None:  # extrapolate the constraints one step on
+                    a, b = scaled(prev), scaled(prev2)
+                    if any(2 * a[k] - b[k] > 0 for k in a if k in b):
+                        return
+                o = score(i + step)
+                if o is None or not safe(o) or o.cost >= prev.cost:
+                    return
+                i += step
+
+        mid = min(self._tuner.design_first, n - 1)
+        first = score(mid)
+        if first is None:
+            return []
+        if safe(first):
+            walk(mid, -1)  # faster loops (the candidates come fastest first)
+            if mid - 1 not in done or not safe(done[mid - 1]) or done[mid - 1].cost >= first.cost:
+                walk(mid, +1)
+        else:
+            # Margins or divergence: slower; following error or saturation only: faster.
+            c = (
+                problem.constraint_values(first, session.fe_limit)
+                if problem.constraints.enabled
+                else {}
+            )
+            loop = first.n_diverged > 0 or any(
+                c.get(k, 0) > 0 for k in ("gain_margin", "phase_margin", "diverged")
+            )
+            step = +1 if loop else -1
+            i = mid
+            while 0 <= i + step < n and (o := score(i + step)) is not None:
+                i += step
+                if safe(o):
+                    walk(i, step)
+                    break
+        return [done[i] for i in sorted(done)]
