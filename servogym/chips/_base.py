@@ -59,6 +59,17 @@ class Move:
                 f"got jerk_counts_per_s3={self.jerk_counts_per_s3!r}."
             )
 
+    @property
+    def limits(self) -> tuple[int, int, float, float]:
+        """``(start_counts, distance_counts, max_velocity, max_acceleration)``: the leading
+        arguments of every family's profile generator."""
+        return (
+            self.start_counts,
+            self.distance_counts,
+            self.max_velocity_counts_per_s,
+            self.max_acceleration_counts_per_s2,
+        )
+
     def settle_ticks(self, sample_time_s: float) -> int:
         """:attr:`settle_s` in whole servo cycles of ``sample_time_s`` (rounded)."""
         return round(self.settle_s / sample_time_s)
@@ -108,15 +119,26 @@ class ChipFamily(abc.ABC):
     polynomial_function: Any = None
 
     def __init_subclass__(
-        cls, *, export: Any = None, kernel: Any = None, response: Any = None, **kw: Any
+        cls,
+        *,
+        params: Any = None,
+        export: Any = None,
+        kernel: Any = None,
+        response: Any = None,
+        **kw: Any,
     ) -> None:
         """Take a family's modules: ``class PMDFamily(ChipFamily, export=..., kernel=...,
         response=...)`` sets :attr:`export_module`, :attr:`formats` and
         :attr:`file_extensions` (from the export module's ``FORMATS`` and
         ``FILE_EXTENSIONS``), :meth:`new_state` (the kernel module's), and
         :attr:`response_function` / :attr:`polynomial_function` (the response module's
-        ``filter_response`` / ``filter_polynomials``); and :attr:`code` from :attr:`name`."""
+        ``filter_response`` / ``filter_polynomials``); ``params=``, the parameter-set class
+        (a ``RegisterSet``), sets :attr:`params_type` and :meth:`parameter_space`; and
+        :attr:`code` comes from :attr:`name`."""
         super().__init_subclass__(**kw)
+        if params is not None:
+            cls.params_type = params
+            cls.parameter_space = staticmethod(params._space_of)  # type: ignore[method-assign]
         if export is not None:
             cls.export_module = export
             cls.formats = export.FORMATS

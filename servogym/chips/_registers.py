@@ -51,36 +51,16 @@ class Spelling:
 
 
 @dataclasses.dataclass(frozen=True)
-class Register:
-    """One row of a family's register table.
+class Register(ParamSpec):
+    """One row of a family's register table: a :class:`ParamSpec` (name, legal range,
+    default, width, unit, doc, source tag [M]/[C]/[A], log scale, tunable, default note) and
+    the register's spelling in each file dialect.
 
     Attributes:
-        name: The register's name in the vendor's own terms (``kp``, ``integration_limit``).
-        low: Smallest legal value (inclusive).
-        high: Largest legal value (inclusive).
-        default: Value used when none is given.
-        width: Storage format on the chip, e.g. ``"u16 (15 bits used)"``, ``"s24"``.
-        unit: Unit of the register, e.g. ``"counts"``, ``"us"``, ``"1/65536"``.
-        doc: One line saying what the register does.
-        source: How sure the range is: ``"M"`` manual, ``"C"`` public code, ``"A"`` assumption.
-        log: Whether an optimizer searches it on a log scale.
-        tunable: Whether tuners and envs search it by default.
-        default_note: Where the default comes from when it is not the controller's own.
         spelling: The register's :class:`Spelling` in each file dialect of the family
             (``"navigator"``, ``"magellan"``, ``"ivar"``, ``"6000"`` ...).
     """
 
-    name: str
-    low: int
-    high: int
-    default: int
-    width: str
-    unit: str = ""
-    doc: str = ""
-    source: str = "M"
-    log: bool = False
-    tunable: bool = True
-    default_note: str = ""
     spelling: Mapping[str, Spelling] = dataclasses.field(default_factory=dict)
 
     @property
@@ -90,19 +70,7 @@ class Register:
 
     def spec(self) -> ParamSpec:
         """The row as the :class:`ParamSpec` validation and the parameter space use."""
-        return ParamSpec(
-            self.name,
-            self.low,
-            self.high,
-            self.default,
-            self.width,
-            log=self.log,
-            tunable=self.tunable,
-            unit=self.unit,
-            doc=self.doc,
-            source=self.source,
-            default_note=self.default_note,
-        )
+        return ParamSpec(**{f.name: getattr(self, f.name) for f in dataclasses.fields(ParamSpec)})
 
 
 class RegisterTable(Mapping[str, Register]):
@@ -119,8 +87,6 @@ class RegisterTable(Mapping[str, Register]):
         self._by_name = {r.name: r for r in self.rows}
         if len(self._by_name) != len(self.rows):
             raise ValueError(f"duplicate register names in the {family} register table")
-        for r in self.rows:
-            r.spec()  # the range holds the default
 
     def __getitem__(self, name: str) -> Register:
         return self._by_name[name]
@@ -183,21 +149,39 @@ class RegisterTable(Mapping[str, Register]):
 class RegisterSet:
     """What a family's parameter-set dataclass derives from its register table.
 
-    The dataclass has ``model`` and one field per row of :attr:`TABLE`; it sets the class
-    attributes below and calls :meth:`_check_registers` from ``__post_init__``.
+    The dataclass has ``model`` and one field per row of the table (a field whose default is
+    ``None`` takes the model's default, e.g. the sample time); it names its table, model
+    look-up and space function as class arguments and calls :meth:`_check_registers` from
+    ``__post_init__``::
+
+        @dataclasses.dataclass(frozen=True)
+        class PMDParams(RegisterSet, table=TABLE, get_model=get_model, space=parameter_space):
+            model: str = "MC2100"
+            kp: int = 100
+            ...
 
     Attributes:
         TABLE: The family's register table; the fields in kernel-array order.
-        MODELS: The chip model records by name.
-        DEFAULT_MODEL: The model ``from_dict`` takes when none is named.
-        MODEL_DEFAULTS: Fields whose ``None`` means the model's default (the space's).
     """
 
     TABLE: ClassVar[RegisterTable]
-    MODELS: ClassVar[Mapping[str, Any]]
-    DEFAULT_MODEL: ClassVar[str]
-    MODEL_DEFAULTS: ClassVar[tuple[str, ...]] = ()
     model: str
+
+    def __init_subclass__(
+        cls,
+        *,
+        table: RegisterTable | None = None,
+        get_model: Any = None,
+        space: Any = None,
+        **kw: Any,
+    ) -> None:
+        super().__init_subclass__(**kw)
+        if table is not None:
+            cls.TABLE = table
+        if get_model is not None:
+            cls._get_model = staticmethod(get_model)  # type: ignore[method-assign]
+        if space is not None:
+            cls._space_of = staticmethod(space)  # type: ignore[method-assign]
 
     @staticmethod
     def _get_model(name: Any) -> Any:
@@ -206,6 +190,10 @@ class RegisterSet:
     @staticmethod
     def _space_of(model: Any) -> ParameterSpace:
         raise NotImplementedError
+
+    @classmethod
+    def _field_default(cls, name: str) -> Any:
+        return cls.__dataclass_fields__[name].default  # type: ignore[attr-defined]
 
     def _absent(self, name: str, chip: Any, value: Any) -> ParameterError:
         """The error for a register the model lacks, set away from the table's default."""
@@ -221,7 +209,7 @@ class RegisterSet:
         space = self._space_of(chip)
         for name in self.TABLE.names:
             value = getattr(self, name)
-            if value is None and name in self.MODEL_DEFAULTS:
+            if value is None and self._field_default(name) is None:
                 value = space[name].default
             if name in space:
                 value = space[name].validate(value, context=chip.name)
@@ -233,7 +221,7 @@ class RegisterSet:
     @property
     def chip(self) -> Any:
         """The chip model record."""
-        return self.MODELS[self.model]
+        return self._get_model(self.model)
 
     @property
     def space(self) -> ParameterSpace:
@@ -249,7 +237,7 @@ class RegisterSet:
     def from_dict(cls, values: Mapping[str, Any]) -> Self:
         """Build from a mapping of register names; unknown names raise with close matches."""
         values = dict(values)
-        model = values.pop("model", cls.DEFAULT_MODEL)
+        model = values.pop("model", cls._field_default("model"))
         space = cls._space_of(model)
         for name in values:
             if name not in cls.TABLE:

@@ -1,8 +1,8 @@
 """Parker Compumotor 6000-series servo (6250, 6K) PIV&F filter, per docs/chips/parker6k.md."""
 
+from servogym.chips._paramfile import ParamFile
 from servogym.chips.parker6k._export import (
     FORMATS,
-    ParamFile,
     export,
     from_command_file,
     from_json,

@@ -28,14 +28,7 @@ from servogym import __version__
 from servogym._files import seal, unseal
 from servogym.chips._formats import Formats, check_index, resolve_model
 from servogym.chips._formats import read_header as read_header_lines
-from servogym.chips._paramfile import (
-    FILE_FORMAT,
-    FILE_FORMAT_VERSION,
-    ExtraKey,
-    FileSchema,
-    ParamFile,
-    assumption_lines,
-)
+from servogym.chips._paramfile import ExtraKey, FileSchema, assumption_lines
 from servogym.chips._space import ParameterError
 from servogym.chips.parker6k._params import (
     CHIP_MODELS,
@@ -55,29 +48,10 @@ from servogym.chips.parker6k._params import (
     parameter_space,
 )
 
-__all__ = [
-    "FILE_EXTENSIONS",
-    "FILE_FORMAT",
-    "FILE_FORMAT_VERSION",
-    "FORMATS",
-    "ParamFile",
-    "export",
-    "from_command_file",
-    "from_json",
-    "import_params",
-    "parse_decimal",
-    "read_header",
-    "to_command_file",
-    "to_json",
-]
-
-FORMATS: tuple[str, ...] = ("json", "6250", "6k")
-"""The export formats, in the order :func:`export` documents them."""
-
 FILE_EXTENSIONS: dict[str, str] = {"json": ".json", "6250": ".prg", "6k": ".prg"}
-"""Suggested file extension of each format."""
+"""Every export format, in the order :func:`export` documents them, and its file extension."""
 
-CHIP_FAMILY = "parker6k"
+FORMATS: tuple[str, ...] = tuple(FILE_EXTENSIONS)
 
 _SYSTEM_COMMANDS = ("SSFR", "SGSET")  # controller-wide: no axis fields, no prefix [A]
 _REGISTER_OF = {cmd: reg for reg, cmd in COMMANDS.items()}
@@ -466,12 +440,12 @@ def _resolve_model(model: str | Parker6kModel | None, header: Mapping[str, Any])
 # --------------------------------------------------------------------------------------
 
 _SCHEMA = FileSchema(
-    family=CHIP_FAMILY,
-    title="Parker 6000-series",
-    spec_version=SPEC_VERSION,
-    params_type=Parker6kParams,
-    assumptions_type=Parker6kAssumptions,
-    get_model=get_model,
+    "parker6k",
+    "Parker 6000-series",
+    SPEC_VERSION,
+    Parker6kParams,
+    Parker6kAssumptions,
+    get_model,
     required=lambda chip: (*FIELDS, "sgset", "sgenb"),
     extra_keys={
         "sample_time_us": ExtraKey(

@@ -22,17 +22,17 @@ from servogym.chips.parker6k._params import (
 from servogym.chips.parker6k._reference import Parker6kReferenceFilter
 
 
-class Parker6kFamily(ChipFamily, export=_export, kernel=_kernel, response=_response):
+class Parker6kFamily(
+    ChipFamily, params=Parker6kParams, export=_export, kernel=_kernel, response=_response
+):
     """Parker Compumotor 6000-series servo controllers (6250, 6K): PIV&F with gain sets."""
 
     name = "parker6k"
     models = CHIP_MODELS
-    params_type = Parker6kParams
     assumptions_type = Parker6kAssumptions
     env_name = "Parker6K"
     reference_type = Parker6kReferenceFilter
     error_trip_off = MappingProxyType({"smper": 0})  # PK-A8: SMPER0 disables the check
-    parameter_space = staticmethod(parameter_space)
 
     def formats_for(self, model: str) -> tuple[str, ...]:
         """JSON and the 6250 form for every model; the axis-prefixed 6K form for the 6K."""
@@ -46,10 +46,7 @@ class Parker6kFamily(ChipFamily, export=_export, kernel=_kernel, response=_respo
     def profile(self, move: Move, sample_time_s: float) -> _profile.Parker6kProfile:
         ssfr = _profile.ssfr_of(sample_time_s)
         return _profile.move(
-            move.start_counts,
-            move.distance_counts,
-            move.max_velocity_counts_per_s,
-            move.max_acceleration_counts_per_s2,
+            *move.limits,
             ssfr,
             kind=move.kind,
             jerk_counts_per_s3=move.jerk_counts_per_s3,

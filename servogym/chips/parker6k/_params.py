@@ -469,7 +469,7 @@ P_SWITCHES = P_N_SWITCHES + 1  # 37: ticks[n], then sets[n]
 
 
 @dataclasses.dataclass(frozen=True)
-class Parker6kParams(RegisterSet):
+class Parker6kParams(RegisterSet, table=TABLE, get_model=get_model, space=parameter_space):
     """A complete, legal parameter set for one servo axis of a 6000-series controller.
 
     Field names are the controller's command names. Gains are integers in steps of their
@@ -491,13 +491,6 @@ class Parker6kParams(RegisterSet):
             increasing in 0 .. 2,147,483,647 (servo samples since the filter's reset), set in
             1 .. len(sgset). From that tick on, the stored set's gains are in force.
     """
-
-    TABLE: ClassVar[RegisterTable] = TABLE
-    MODELS: ClassVar[Mapping[str, Parker6kModel]] = CHIP_MODELS
-    DEFAULT_MODEL: ClassVar[str] = "6250"
-    MODEL_DEFAULTS: ClassVar[tuple[str, ...]] = ("ssfr",)
-    _get_model = staticmethod(get_model)
-    _space_of = staticmethod(parameter_space)
 
     model: str = "6250"
     sgp: int = 8500

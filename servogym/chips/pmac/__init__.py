@@ -3,10 +3,10 @@
 The family object :data:`PMAC` is what the chip registry lists as ``"pmac"``.
 """
 
+from servogym.chips._paramfile import ParamFile
 from servogym.chips.pmac._export import (
     FILE_EXTENSIONS,
     FORMATS,
-    ParamFile,
     export,
     from_ivar,
     from_json,

@@ -26,14 +26,7 @@ from servogym import __version__
 from servogym._files import seal, unseal
 from servogym.chips._formats import Formats, check_index, resolve_model
 from servogym.chips._formats import read_header as read_header_lines
-from servogym.chips._paramfile import (
-    FILE_FORMAT,
-    FILE_FORMAT_VERSION,
-    ExtraKey,
-    FileSchema,
-    ParamFile,
-    assumption_lines,
-)
+from servogym.chips._paramfile import ExtraKey, FileSchema, assumption_lines
 from servogym.chips._space import ParameterError
 from servogym.chips.pmac._params import (
     CHIP_MODELS,
@@ -52,28 +45,10 @@ from servogym.chips.pmac._params import (
     parameter_space,
 )
 
-__all__ = [
-    "FILE_EXTENSIONS",
-    "FILE_FORMAT",
-    "FILE_FORMAT_VERSION",
-    "FORMATS",
-    "ParamFile",
-    "export",
-    "from_ivar",
-    "from_json",
-    "import_params",
-    "read_header",
-    "to_ivar",
-    "to_json",
-]
-
-FORMATS: tuple[str, ...] = ("json", "ivar")
-"""The export formats, in the order :func:`export` documents them."""
-
 FILE_EXTENSIONS: dict[str, str] = {"json": ".json", "ivar": ".pmc"}
-"""Suggested file extension of each format."""
+"""Every export format, in the order :func:`export` documents them, and its file extension."""
 
-CHIP_FAMILY = "pmac"
+FORMATS: tuple[str, ...] = tuple(FILE_EXTENSIONS)
 
 # --------------------------------------------------------------------------------------
 # Shared checks
@@ -89,12 +64,12 @@ def _check_motor(chip: PMACChipModel, motor: Any, where: str = "") -> int:
 # --------------------------------------------------------------------------------------
 
 _SCHEMA = FileSchema(
-    family=CHIP_FAMILY,
-    title="PMAC",
-    spec_version=SPEC_VERSION,
-    params_type=PMACParams,
-    assumptions_type=PMACAssumptions,
-    get_model=get_model,
+    "pmac",
+    "PMAC",
+    SPEC_VERSION,
+    PMACParams,
+    PMACAssumptions,
+    get_model,
     required=parameter_space,
     extra_keys={
         "sample_time_s": ExtraKey(

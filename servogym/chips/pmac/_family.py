@@ -7,25 +7,18 @@ from typing import Any
 
 from servogym.chips._base import ChipFamily, Move
 from servogym.chips.pmac import _export, _kernel, _profile, _response
-from servogym.chips.pmac._params import (
-    CHIP_MODELS,
-    PMACAssumptions,
-    PMACParams,
-    parameter_space,
-)
+from servogym.chips.pmac._params import CHIP_MODELS, PMACAssumptions, PMACParams
 from servogym.chips.pmac._reference import PMACReferenceFilter
 
 
-class PMACFamily(ChipFamily, export=_export, kernel=_kernel, response=_response):
+class PMACFamily(ChipFamily, params=PMACParams, export=_export, kernel=_kernel, response=_response):
     """Delta Tau Turbo PMAC2 and Geo Brick LV: PID + feed-forward + notch (Ixx30..Ixx39)."""
 
     name = "pmac"
     models = CHIP_MODELS
-    params_type = PMACParams
     assumptions_type = PMACAssumptions
     reference_type = PMACReferenceFilter
     error_trip_off = MappingProxyType({"fatal_following_error_limit": 0})  # Ixx11 = 0 disables it
-    parameter_space = staticmethod(parameter_space)
 
     def native_latency_s(self, params: Any, choice: str) -> float:
         """PMAC-A14 ``"phase_edge"``: one phase period, servo period / (I7002 + 1)."""
@@ -36,10 +29,7 @@ class PMACFamily(ChipFamily, export=_export, kernel=_kernel, response=_response)
     def profile(self, move: Move, sample_time_s: float) -> _profile.Profile:
         return _profile.move(
             move.kind,
-            move.start_counts,
-            move.distance_counts,
-            move.max_velocity_counts_per_s,
-            move.max_acceleration_counts_per_s2,
+            *move.limits,
             sample_time_s,
             jerk_counts_per_s3=move.jerk_counts_per_s3 if move.kind == "s_curve" else None,
             settle_ticks=move.settle_ticks(sample_time_s),

@@ -9,7 +9,6 @@ clock I-variables ``I7000``..``I7002`` that set the servo period.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from fractions import Fraction
 from typing import ClassVar
 
@@ -522,7 +521,7 @@ def parameter_space(model: str | PMACChipModel) -> ParameterSpace:
 
 
 @dataclasses.dataclass(frozen=True)
-class PMACParams(RegisterSet):
+class PMACParams(RegisterSet, table=TABLE, get_model=get_model, space=parameter_space):
     """A complete, legal parameter set for one motor of a Turbo PMAC controller.
 
     Field names say what each I-variable does; :data:`I_VARIABLES` maps them one to one to the
@@ -553,13 +552,6 @@ class PMACParams(RegisterSet):
         phase_clock_divider: I7001, 0 .. 15. ``None``: the model's default.
         servo_clock_divider: I7002, 0 .. 15. ``None``: the model's default.
     """
-
-    TABLE: ClassVar[RegisterTable] = TABLE
-    MODELS: ClassVar[Mapping[str, PMACChipModel]] = CHIP_MODELS
-    DEFAULT_MODEL: ClassVar[str] = "TurboPMAC2"
-    MODEL_DEFAULTS: ClassVar[tuple[str, ...]] = GLOBAL_FIELDS
-    _get_model = staticmethod(get_model)
-    _space_of = staticmethod(parameter_space)
 
     model: str = "TurboPMAC2"
     position_loop_scale: int = 96

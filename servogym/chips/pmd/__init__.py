@@ -1,8 +1,8 @@
 """PMD Navigator / Pilot / Magellan servo filter (MC2100 ... MC58000), per docs/chips/pmd.md."""
 
+from servogym.chips._paramfile import ParamFile
 from servogym.chips.pmd._export import (
     FORMATS,
-    ParamFile,
     export,
     from_json,
     import_params,

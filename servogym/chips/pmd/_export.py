@@ -27,14 +27,7 @@ from servogym import __version__
 from servogym._files import seal, unseal
 from servogym.chips._formats import Formats, check_index, resolve_model
 from servogym.chips._formats import read_header as read_header_lines
-from servogym.chips._paramfile import (
-    FILE_FORMAT,
-    FILE_FORMAT_VERSION,
-    ExtraKey,
-    FileSchema,
-    ParamFile,
-    assumption_lines,
-)
+from servogym.chips._paramfile import ExtraKey, FileSchema, assumption_lines
 from servogym.chips._space import ParameterError
 from servogym.chips.pmd._params import (
     CHIP_MODELS,
@@ -47,36 +40,10 @@ from servogym.chips.pmd._params import (
     parameter_space,
 )
 
-__all__ = [
-    "FILE_EXTENSIONS",
-    "FILE_FORMAT",
-    "FILE_FORMAT_VERSION",
-    "FORMATS",
-    "MAGELLAN_POSITION_LOOP",
-    "HostCommand",
-    "ParamFile",
-    "export",
-    "from_cmotion",
-    "from_host_commands",
-    "from_host_text",
-    "from_json",
-    "host_commands_to_text",
-    "host_text_to_commands",
-    "import_params",
-    "read_header",
-    "to_cmotion",
-    "to_host_commands",
-    "to_host_text",
-    "to_json",
-]
-
-FORMATS: tuple[str, ...] = ("json", "cmotion", "host")
-"""The export formats, in the order :func:`export` documents them."""
-
 FILE_EXTENSIONS: dict[str, str] = {"json": ".json", "cmotion": ".c", "host": ".txt"}
-"""Suggested file extension of each format."""
+"""Every export format, in the order :func:`export` documents them, and its file extension."""
 
-CHIP_FAMILY = "pmd"
+FORMATS: tuple[str, ...] = tuple(FILE_EXTENSIONS)
 
 # --------------------------------------------------------------------------------------
 # Command tables. Opcodes, call names and data widths: see docs/chips/pmd-export.md.
@@ -321,12 +288,12 @@ def read_header(text: str) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------
 
 _SCHEMA = FileSchema(
-    family=CHIP_FAMILY,
-    title="PMD",
-    spec_version=SPEC_VERSION,
-    params_type=PMDParams,
-    assumptions_type=PMDAssumptions,
-    get_model=_chip,
+    "pmd",
+    "PMD",
+    SPEC_VERSION,
+    PMDParams,
+    PMDAssumptions,
+    _chip,
     required=parameter_space,
     extra_keys={
         "sample_time_us": ExtraKey(

@@ -7,22 +7,20 @@ from typing import Any
 
 from servogym.chips._base import ChipFamily, Move
 from servogym.chips.pmd import _export, _kernel, _profile, _response
-from servogym.chips.pmd._params import CHIP_MODELS, PMDAssumptions, PMDParams, parameter_space
+from servogym.chips.pmd._params import CHIP_MODELS, PMDAssumptions, PMDParams
 from servogym.chips.pmd._reference import PMDReferenceFilter
 
 
-class PMDFamily(ChipFamily, export=_export, kernel=_kernel, response=_response):
+class PMDFamily(ChipFamily, params=PMDParams, export=_export, kernel=_kernel, response=_response):
     """PMD Navigator / Pilot / Magellan (MC2100 ... MC58000)."""
 
     name = "pmd"
     models = CHIP_MODELS
-    params_type = PMDParams
     assumptions_type = PMDAssumptions
     reference_type = PMDReferenceFilter
     error_trip_off = MappingProxyType(
         {"position_error_limit": 2**31 - 1}
     )  # PMD-A10: the largest limit
-    parameter_space = staticmethod(parameter_space)
 
     def native_latency_s(self, params: Any, choice: str) -> float:
         """PMD-A13 ``"axis_slot"``: one per-axis slot, the model's minimum sample time."""
@@ -33,10 +31,7 @@ class PMDFamily(ChipFamily, export=_export, kernel=_kernel, response=_response):
     def profile(self, move: Move, sample_time_s: float) -> _profile.Profile:
         return _profile.move(
             move.kind,
-            move.start_counts,
-            move.distance_counts,
-            move.max_velocity_counts_per_s,
-            move.max_acceleration_counts_per_s2,
+            *move.limits,
             sample_time_s,
             jerk_counts_per_s3=move.jerk_counts_per_s3,
             settle_ticks=move.settle_ticks(sample_time_s),

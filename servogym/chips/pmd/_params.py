@@ -7,7 +7,6 @@ that the spec's tables match this module.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 from servogym.chips._assumptions import AssumptionSet
@@ -344,7 +343,7 @@ def parameter_space(model: str | PMDChipModel) -> ParameterSpace:
 
 
 @dataclasses.dataclass(frozen=True)
-class PMDParams(RegisterSet):
+class PMDParams(RegisterSet, table=TABLE, get_model=get_model, space=parameter_space):
     """A complete, legal parameter set for one axis of a PMD chip.
 
     Field names are the chip's own register names (:data:`TABLE`). Construction validates
@@ -364,13 +363,6 @@ class PMDParams(RegisterSet):
         biquad1_* / biquad2_*: MC58000 biquad stages (enable 0/1, coefficients s16, k u16);
             on other models they must keep their defaults (bypassed).
     """
-
-    TABLE: ClassVar[RegisterTable] = TABLE
-    MODELS: ClassVar[Mapping[str, PMDChipModel]] = CHIP_MODELS
-    DEFAULT_MODEL: ClassVar[str] = "MC2100"
-    MODEL_DEFAULTS: ClassVar[tuple[str, ...]] = ("sample_time_us",)
-    _get_model = staticmethod(get_model)
-    _space_of = staticmethod(parameter_space)
 
     model: str = "MC2100"
     kp: int = 100
