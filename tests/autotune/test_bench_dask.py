@@ -25,6 +25,7 @@ from servogym.autotune.bench._runner import (
     ClusterError,
     Job,
     check_scheduler_address,
+    check_workers,
     compute_job,
     environment,
     load_job,
@@ -112,6 +113,37 @@ def test_a_worker_with_other_versions_refuses_the_job():
         compute_job(job, other)
 
 
+class _Answers:
+    """A stand-in for ``distributed.Client`` whose workers give fixed answers to ``run``."""
+
+    def __init__(self, answers):
+        self.answers = answers
+
+    def run(self, function, on_error):
+        assert on_error == "return"
+        return self.answers
+
+    def nthreads(self):
+        return {addr: 1 for addr in self.answers}
+
+
+def test_workers_that_cannot_run_the_jobs_are_named():
+    good = environment()
+    assert check_workers(_Answers({"tcp://a:1": good, "tcp://b:1": good})) == {
+        "tcp://a:1": 1,
+        "tcp://b:1": 1,
+    }
+    missing = ModuleNotFoundError("No module named 'servogym'")
+    with pytest.raises(ClusterError, match=r"worker tcp://b:1 cannot run servogym's jobs "
+                       r"\(ModuleNotFoundError: No module named 'servogym'\)"):  # fmt: skip
+        check_workers(_Answers({"tcp://a:1": good, "tcp://b:1": missing}))
+    other = {**good, "mujoco": "1.0.0"}
+    with pytest.raises(
+        ClusterError, match=r"worker tcp://a:1 has other versions .*: mujoco 1\.0\.0"
+    ):
+        check_workers(_Answers({"tcp://a:1": other}))
+
+
 @pytest.mark.parametrize(
     "address", ["10.0.0.5:8786", "tcp://10.0.0.5", "tcp://:8786", "tcp://h:0", "tcp://h:70000",
                 "nosuch://h:8786", ""],
@@ -142,8 +174,9 @@ def test_scheduler_with_local_only_options_is_refused(extra, match, tmp_path):
 def test_no_scheduler_at_the_address_is_refused_before_anything_is_written(tmp_path, monkeypatch):
     monkeypatch.setattr(_runner, "CONNECT_TIMEOUT_S", 1.0)
     out = tmp_path / "bench"
-    argv = ["benchmark", "--out", str(out), "--tuners", "random", "--instance", IDS[0],
-            "--budget", "3", "--seeds", "1", "--scheduler", "tcp://127.0.0.1:1"]  # fmt: skip
+    argv = ["benchmark", "--out", str(out), "--suite", SUITE_NAME, "--tuners", "random",
+            "--instance", IDS[0], "--budget", "3", "--seeds", "1",
+            "--scheduler", "tcp://127.0.0.1:1"]  # fmt: skip
     result = CliRunner().invoke(app, argv)
     assert result.exit_code == 2
     assert "no Dask scheduler answered at --scheduler 'tcp://127.0.0.1:1' within 1 s" in (

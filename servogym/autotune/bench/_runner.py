@@ -639,10 +639,13 @@ def _run_on_cluster(
 
 
 def _job_error(job: Job, fut: Any) -> ClusterError:
-    try:
-        exc = fut.exception()
-    except BaseException as err:  # cancelled
-        exc = err
+    if fut.status != "error":  # cancelled or lost: the scheduler or the connection went away
+        return ClusterError(
+            f"job {job.key} was {fut.status} on the Dask cluster (the scheduler stopped, or "
+            "the connection to it was lost); the records stored so far stay: run the same "
+            "command again to resume."
+        )
+    exc = fut.exception()
     if isinstance(exc, ClusterError):
         return exc
     text = f"job {job.key} failed on the Dask cluster: {type(exc).__name__}: {exc}"
