@@ -1,6 +1,7 @@
 """PMD Navigator / Pilot / Magellan servo filter (MC2100 ... MC58000), per docs/chips/pmd.md."""
 
 from servogym.chips._paramfile import ParamFile
+from servogym.chips.pmd import _params
 from servogym.chips.pmd._export import (
     FORMATS,
     export,
@@ -12,7 +13,6 @@ from servogym.chips.pmd._params import (
     CHIP_MODELS,
     FIELDS,
     SPEC_VERSION,
-    TABLE,
     PMDAssumptions,
     PMDChipModel,
     PMDParams,
@@ -55,3 +55,6 @@ __all__ = [
 from servogym.chips.pmd._family import PMD  # the family object the registry lists
 
 __all__ += ["PMD"]
+
+TABLE = _params.TABLE
+"""The PMD register table (:mod:`servogym.chips._registers`)."""
