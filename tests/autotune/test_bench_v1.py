@@ -183,3 +183,51 @@ def test_every_best_known_set_reproduces_and_passes_servogym_check(instance_id, 
     assert res.exit_code == 0, res.output
     doc = json.loads(res.output)
     assert doc["passed"] and doc["instance"] == instance_id
+
+
+def test_benchmark_list_prints_the_split_and_the_pmac_registers():
+    from servogym.cli import app
+
+    res = CliRunner().invoke(app, ["benchmark", "--list", "--split", "heldout"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.strip().splitlines()
+    assert [ln.split("\t")[0] for ln in lines] == SUITE.ids("heldout")
+    pmac = next(ln for ln in lines if "/turbopmac2/" in ln)
+    assert "output_limit=32767" in pmac and "fatal_following_error_limit=" in pmac
+    res = CliRunner().invoke(app, ["benchmark", "--suite", V1])
+    assert res.exit_code != 0 and "--out is required" in res.output
+
+
+def test_median_ci_brackets_the_median_and_keeps_inf():
+    from servogym.autotune.bench._report import median_ci
+
+    x = np.array([1.0, 1.1, 1.2, 1.3, 5.0])
+    lo, hi = median_ci(x)
+    assert lo <= 1.2 <= hi and lo >= 1.0 and hi <= 5.0
+    assert median_ci(x) == (lo, hi)  # seeded
+    lo, hi = median_ci(np.array([1.0, np.inf, np.inf, np.inf]))
+    assert hi == math.inf
+    assert all(math.isnan(v) for v in median_ci(np.array([])))
+
+
+def test_report_rows_have_v1_fields_per_family_and_the_default_tuner(tmp_path):
+    from servogym.autotune._tuners import DEFAULT_TUNER
+    from servogym.autotune.bench import load_results, plan_jobs, run_jobs, write_report
+
+    ids = ["servobench-v1/mc2100/rotary/light/fast", "servobench-v1/turbopmac2/rotary/light/fast"]
+    jobs, _ = plan_jobs([SUITE.instance(i) for i in ids], ["random"], [4], [0])
+    run_jobs(jobs, tmp_path)
+    records = load_results(tmp_path)
+    best = {i: {"cost": 1.0, "feasible": True} for i in ids}
+    summary = write_report(records, tmp_path, best_known=best, budgets=[4])
+    # what `servogym tune` runs without --tuner (the tune test suite asserts the CLI uses it)
+    assert summary["default_tuner"] == DEFAULT_TUNER
+    row = summary["rows"][0]
+    for key in ("within_5pct", "within_10pct", "unsafe_fraction", "median_rel_ci95"):
+        assert key in row
+    flags = [f for r in records for f in r["flags"]]
+    unsafe = sum(1 for f in flags if f & 0b100111)  # diverged, FE, saturation, margins
+    assert row["unsafe_fraction"] == pytest.approx(unsafe / len(flags))
+    assert set(summary["rows_by_family"]) == {"PMD", "PMAC"}
+    assert (tmp_path / "ecdf_pmac.png").is_file() and (tmp_path / "ecdf_pmd.png").is_file()
+    assert "## Summary on the 1 PMAC instances" in (tmp_path / "report.md").read_text()

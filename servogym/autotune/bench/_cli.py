@@ -34,8 +34,19 @@ def _ints(text: str, option: str, high: int = MAX_BUDGET) -> list[int]:
 
 
 def benchmark_command(
-    out: Annotated[Path, typer.Option("--out", help="Output folder (job results, report).")],
-    suite: Annotated[str, typer.Option("--suite", help="Suite name.")] = "servobench-v0",
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="Output folder (job results, report); required to run."),
+    ] = None,
+    suite: Annotated[
+        str, typer.Option("--suite", help="Suite name: servobench-v1 or servobench-v0.")
+    ] = "servobench-v1",
+    list_ids: Annotated[
+        bool,
+        typer.Option(
+            "--list", help="Print the split's instance ids (chip, plant, load, task) and stop."
+        ),
+    ] = False,
     split: Annotated[
         str, typer.Option("--split", help="Instances: train, heldout or all.")
     ] = "train",
@@ -146,12 +157,22 @@ def benchmark_command(
     twice = sorted({t for t in tuner_list if tuner_list.count(t) > 1})
     if twice:
         fail(f"--tuners names {', '.join(twice)} twice; got --tuners {tuners!r}.")
-    if out.exists() and not out.is_dir():
+    if out is not None and out.exists() and not out.is_dir():
         fail(f"--out {str(out)!r} is a file; give a folder for the benchmark.")
     from servogym.autotune._tuners import get_tuner
 
     check_choice("--suite", suite, get_suite)
     s = get_suite(suite)
+    if list_ids:
+        check_choice("--split", split, lambda v: s.ids(v))
+        for i in s.ids(split):
+            spec = s.spec(i)
+            fixed = " ".join(f"{k}={v}" for k, v in spec.fixed.items())
+            typer.echo(f"{i}\t{spec.split}\t{spec.plant_values}\t{fixed}".rstrip())
+        return
+    if out is None:
+        fail("--out is required: the folder for the job results and the report.")
+        return
     if split not in ("train", "heldout", "all"):
         fail(f"--split must be one of train, heldout, all; got --split {split!r}.")
     ids = s.ids(split)

@@ -389,6 +389,23 @@ def _unsolved_table(runs: Sequence[Run], tuners: Sequence[str], ids: Sequence[st
     return lines
 
 
+CHIP_FAMILIES = {"mc": "PMD", "turbopmac": "PMAC", "geobrick": "PMAC", "6": "Parker 6000"}
+"""Chip family of an instance by the start of its chip model (lower case)."""
+
+
+def instance_family(instance_id: str) -> str:
+    """``"PMD"``, ``"PMAC"`` or ``"Parker 6000"``: the chip family of an instance id."""
+    chip = instance_id.split("/")[1]
+    return next(f for prefix, f in CHIP_FAMILIES.items() if chip.startswith(prefix))
+
+
+def default_tuner() -> str:
+    """The tuner ``servogym tune`` runs when ``--tuner`` is not given (single objective)."""
+    from servogym.autotune._tuners import DEFAULT_TUNER
+
+    return DEFAULT_TUNER
+
+
 def write_report(
     records: Sequence[Mapping[str, Any]],
     out_dir: str | Path,
@@ -450,6 +467,16 @@ def write_report(
     _plot_relative(runs, bk, tuners, budgets, out / "relative_cost.png")
 
     rows = summarize(runs, bk, tuners, budgets, instances)
+    families: dict[str, list[str]] = defaultdict(list)
+    for i in instances:
+        families[instance_family(i)].append(i)
+    by_family = {}
+    for fam, ids in families.items():
+        by_family[fam] = summarize(runs, bk, tuners, budgets, ids)
+        name = "ecdf_" + fam.lower().replace(" ", "") + ".png"
+        _plot_ecdf(runs, bk, tuners, budgets, set(ids), out / name,
+                   f"ECDF on the {len(ids)} {fam} instances")  # fmt: skip
+        plots[name] = (f"{fam} instances", set(ids))
     md = [
         "# servobench report",
         "",
@@ -478,6 +505,10 @@ def write_report(
     for label, subset in ((lbl, s) for lbl, s in subsets.items()):
         md += ["", f"## Summary on the {len(subset)} {label}", ""]
         md += _summary_table(summarize(runs, bk, tuners, budgets, sorted(subset)))
+    if len(by_family) > 1:
+        for fam, fam_rows in by_family.items():
+            md += ["", f"## Summary on the {len(families[fam])} {fam} instances", ""]
+            md += _summary_table(fam_rows)
     if infeasible_bk:
         md += ["", "## Instances without a known safe set", "",
                "Runs (at the largest budget each tuner ran) that found at least one safe set, "
@@ -511,6 +542,8 @@ def write_report(
         "tuners": tuners,
         "instances": instances,
         "rows": rows,
+        "rows_by_family": by_family,
+        "default_tuner": default_tuner(),
         "subsets": {k: sorted(v) for k, v in subsets.items()},
         "skipped": [list(s) for s in skipped],
     }
