@@ -50,8 +50,11 @@ logger = logging.getLogger(__name__)
 
 _SQRT5 = math.sqrt(5.0)
 
-LENGTH_SCALES = (0.05, 0.1, 0.2, 0.4, 0.8)
+LENGTH_SCALES = (0.05, 0.1, 0.2, 0.4)
 """Kernel length scales (unit-cube units, a cube of side 2) the likelihood chooses from."""
+
+CENTRE_KEY = "safe_centre"
+"""User attribute of a trial the safe tuner asked: the number of the trial it moved from."""
 
 BINARY_CONSTRAINTS = ("diverged",)
 """Constraints that are counts (0 when met): modelled as -1 (met) or +1 (violated)."""
@@ -119,13 +122,14 @@ class _GP:
 class _Row:
     """One finished trial as the model sees it."""
 
-    __slots__ = ("cons", "kind", "log_cost", "number", "safe", "sample", "x")
+    __slots__ = ("centre", "cons", "kind", "log_cost", "number", "safe", "sample", "x")
 
     def __init__(self, number: int, kind: str, x: np.ndarray, log_cost: float,
-                 cons: np.ndarray, safe: bool) -> None:  # fmt: skip
+                 cons: np.ndarray, safe: bool, centre: int | None) -> None:  # fmt: skip
         self.number, self.kind, self.x = number, kind, x
         self.log_cost, self.cons, self.safe = log_cost, cons, safe
         self.sample = kind == "sample"
+        self.centre = centre
 
 
 class _Model:
@@ -152,7 +156,7 @@ class _Model:
         }
         self.names: list[str] | None = None
         self.rows: dict[int, _Row] = {}
-        self._fit_cache: tuple[tuple[int, ...], _GP] | None = None
+        self._fit_cache: tuple[Any, _GP] | None = None
         base = {
             **self.space.family.parameter_space(self.space.chip_model).defaults(),
             **self.space.fixed,
@@ -183,10 +187,11 @@ class _Model:
             safe = diverged == 0 and all(v <= 0 for v in t.constraints.values())
             cost = float(t.values[0])
             log_cost = math.log(max(cost, 1e-12)) if math.isfinite(cost) else math.nan
-            return _Row(t.number, kind, x, log_cost, cons, safe)
+            return _Row(t.number, kind, x, log_cost, cons, safe, t.user_attrs.get(CENTRE_KEY))
         if t.state.name == "FAIL" and "error" in t.user_attrs:
             # A set a family's cross-register rule refuses: never proposed again.
-            return _Row(t.number, kind, x, math.nan, np.array([]), False)
+            return _Row(t.number, kind, x, math.nan, np.array([]), False,
+                        t.user_attrs.get(CENTRE_KEY))  # fmt: skip
         return None
 
     def _scaled(self, name: str, value: float) -> float:
@@ -210,12 +215,21 @@ class _Model:
 
     # ---------------------------------------------------------------- the trust region
 
-    def trust_region(self, rows: list[_Row]) -> tuple[float, _Row | None]:
-        """Replay the trials in number order: the radius and the centre (best safe row)."""
+    def trust_region(self, rows: list[_Row]) -> tuple[np.ndarray, _Row | None]:
+        """Replay the trials in number order: each register's half-width and the centre
+        (the best safe row).
+
+        A trial changes the half-widths of the registers it moved away from its centre
+        (the trial it was proposed around): halved when it is unsafe; after
+        :attr:`SafeTuner.success_tolerance` improving trials in a row every half-width
+        doubles, after :attr:`SafeTuner.failure_tolerance` trials without improvement
+        every one halves.
+        """
         tuner = self.tuner
-        r = tuner.initial_radius
+        r = np.full(self.dim, tuner.initial_radius)
         fail_tol = max(tuner.failure_tolerance, self.dim // 2)
         best: _Row | None = None
+        least = math.inf  # the smallest violation while nothing is safe
         wins = losses = 0
         for row in rows:
             better = (
@@ -223,48 +237,71 @@ class _Model:
                 and not math.isnan(row.log_cost)
                 and (best is None or row.log_cost < best.log_cost - tuner.min_improvement)
             )
-            if row.sample:
-                if not row.safe:
-                    r, wins, losses = max(r / 2, tuner.min_radius), 0, 0
-                elif better:
+            violation = float(row.cons.max()) if len(row.cons) else math.inf
+            if row.sample and best is None and not row.safe:
+                # No safe set yet: every trial is unsafe; progress is a smaller violation.
+                if violation < least - tuner.min_improvement:
                     wins, losses = wins + 1, 0
                     if wins >= tuner.success_tolerance:
-                        r, wins = min(2 * r, tuner.max_radius), 0
+                        r, wins = np.minimum(2 * r, tuner.max_radius), 0
                 else:
                     wins, losses = 0, losses + 1
                     if losses >= fail_tol:
-                        r, losses = max(r / 2, tuner.min_radius), 0
+                        r, losses = np.maximum(r / 2, tuner.min_radius), 0
+            elif row.sample:
+                centre = self.rows.get(row.centre) if row.centre is not None else best
+                moved = (
+                    np.abs(row.x - centre.x) > 1e-12
+                    if centre is not None
+                    else np.ones(self.dim, bool)
+                )
+                if not row.safe:
+                    r[moved] = np.maximum(r[moved] / 2, tuner.min_radius)
+                    wins, losses = 0, 0
+                elif better:
+                    wins, losses = wins + 1, 0
+                    if wins >= tuner.success_tolerance:
+                        r, wins = np.minimum(2 * r, tuner.max_radius), 0
+                else:
+                    wins, losses = 0, losses + 1
+                    if losses >= fail_tol:
+                        r, losses = np.maximum(r / 2, tuner.min_radius), 0
             if better:
                 best = row
+            least = min(least, violation)
         return r, best
 
     # ---------------------------------------------------------------- proposals
 
-    def propose(self, trials: list[Any], rng: np.random.Generator) -> np.ndarray:
-        """The unit-cube point of the next trial."""
+    def propose(self, trials: list[Any], rng: np.random.Generator) -> tuple[np.ndarray, Any]:
+        """The unit-cube point of the next trial and the number of its centre trial."""
         rows, pending = self.update(trials)
         radius, best = self.trust_region(rows)
         scored = [r for r in rows if not math.isnan(r.log_cost)]
         if best is None and not scored:
             # Nothing evaluated yet: the start (the chip's defaults or the warm start).
-            return self.start.copy()
+            return self.start.copy(), None
         if best is None:  # nothing safe yet: head for the least violation
-            centre = min(scored, key=lambda r: (float(r.cons.max()), r.log_cost)).x
+            centre_row = min(scored, key=lambda r: (float(r.cons.max()), r.log_cost))
         else:
-            centre = best.x
-        gp = self._fitted(self._local(rows, centre))
+            centre_row = best
+        centre = centre_row.x
+        # The kernel sees each register in units of its half-width (the registers found
+        # sensitive, with small half-widths, are far apart for the safety model).
+        scale = float(np.exp(np.log(radius).mean())) / radius
+        gp = self._fitted(self._local(rows, centre), scale)
         if pending:
-            gp = gp.with_points(np.array(pending))
+            gp = gp.with_points(np.array(pending) * scale)
         fallback: tuple[float, np.ndarray] | None = None
         for attempt in range(4):
             cands = self._candidates(centre, radius / 2**attempt, rng)
-            pick, least = self._choose(gp, cands, feasible=best is not None)
+            pick, least = self._choose(gp, cands, scale, feasible=best is not None)
             if pick is not None:
-                return pick
+                return pick, centre_row.number
             if fallback is None or least[0] < fallback[0]:
                 fallback = least
         # Nothing predicted safe even at 1/8 of the radius: the likeliest safe candidate.
-        return fallback[1] if fallback is not None else centre.copy()
+        return (fallback[1] if fallback is not None else centre.copy()), centre_row.number
 
     def _local(self, rows: list[_Row], centre: np.ndarray) -> list[_Row]:
         """The :attr:`SafeTuner.n_local` rows nearest the centre (unique points)."""
@@ -278,20 +315,23 @@ class _Model:
             uniq = [uniq[i] for i in sorted(keep)]
         return uniq
 
-    def _candidates(self, centre: np.ndarray, radius: float, rng: np.random.Generator) -> Any:
+    def _candidates(
+        self, centre: np.ndarray, radius: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
         n, d = self.tuner.n_candidates, self.dim
-        mask = rng.random((n, d)) < max(0.5, min(1.0, 2.0 / d))
+        mask = rng.random((n, d)) < self.tuner.move_probability(d)
         mask[np.arange(n), rng.integers(0, d, n)] = True  # at least one register moves
         step = rng.uniform(-1.0, 1.0, (n, d)) * radius
         return np.clip(centre + mask * step, -1.0, 1.0)
 
-    def _fitted(self, data: list[_Row]) -> _GP:
-        """The GP of the data rows (cached: the asks of one batch share their data)."""
-        key = tuple(r.number for r in data)
+    def _fitted(self, data: list[_Row], scale: np.ndarray) -> _GP:
+        """The GP of the data rows, inputs times ``scale`` (cached: the asks of one batch
+        share both)."""
+        key = (tuple(r.number for r in data), scale.tobytes())
         if self._fit_cache is not None and self._fit_cache[0] == key:
             return self._fit_cache[1]
         tuner = self.tuner
-        x = np.array([r.x for r in data])
+        x = np.array([r.x for r in data]) * scale
         names = self.names or []
         n_cons = len(names)
         costs = np.array([r.log_cost for r in data])
@@ -316,12 +356,12 @@ class _Model:
         return gp
 
     def _choose(
-        self, gp: _GP, cands: np.ndarray, feasible: bool
+        self, gp: _GP, cands: np.ndarray, scale: np.ndarray, feasible: bool
     ) -> tuple[np.ndarray | None, tuple[float, np.ndarray]]:
         """The safe candidate with the lowest cost bound (``None``: none is safe), and the
         candidate likeliest to be safe with its largest constraint bound."""
         tuner = self.tuner
-        mean, std = gp.predict(cands)
+        mean, std = gp.predict(cands * scale)
         n_cons = mean.shape[1] - 1
         if not n_cons:
             return cands[int(np.argmin(mean[:, 0] - tuner.kappa * std[:, 0]))], (0.0, cands[0])
@@ -355,7 +395,9 @@ def _sampler_class() -> type:
             if not search_space:
                 return {}
             trials = study._get_trials(deepcopy=False, use_cache=True)
-            x = self._model.propose(trials, np.random.default_rng(self._seed))
+            x, centre = self._model.propose(trials, np.random.default_rng(self._seed))
+            if centre is not None:  # the trust region's replay needs it
+                study._storage.set_trial_user_attr(trial._trial_id, CENTRE_KEY, centre)
             return {u: float(v) for u, v in zip(self._model.unit_names, x, strict=True)}
 
         def sample_independent(self, study: Any, trial: Any, name: str, dist: Any) -> Any:
@@ -377,7 +419,7 @@ class SafeTuner(OptunaTuner):
     name = "safe"
     supports_multi_objective = False
 
-    initial_radius = 0.05
+    initial_radius = 0.03
     """Half-width of the first trust region (the unit cube has side 2)."""
     max_radius = 0.4
     """Largest half-width."""
@@ -395,6 +437,12 @@ class SafeTuner(OptunaTuner):
     """Exploration of the cost: the lowest mean - kappa * std among safe candidates."""
     n_candidates = 256
     """Random candidates scored per trial."""
+
+    @staticmethod
+    def move_probability(dim: int) -> float:
+        """Probability that a candidate moves a register (one more is always moved)."""
+        return max(0.5, 2.0 / dim)
+
     n_local = 48
     """Trials nearest the centre the Gaussian processes see."""
     min_amplitude = 0.5
