@@ -1,0 +1,390 @@
+"""A multi-axis machine: N axes of one controller closed around one multi-axis plant.
+
+How a controller sequences its axes within a servo cycle is a named, switchable assumption
+of its family (:data:`SEQUENCING`, ids ``PMD-M1``, ``PMAC-M1``, ``PK-M1``; docs/chips/*.md,
+"Multi-axis"), and the servo period follows the number of enabled axes as each chip
+documents (:func:`check_machine`): a PMD chip time-slices its cycle per enabled axis, a PMAC
+servos every motor at one servo interrupt, a 6000-series controller updates every axis each
+servo sample. :class:`MultiServoLoop` runs one episode of every axis in one compiled call
+(``servogym.sim._multiloop``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from servogym.chips._family import family_of
+from servogym.chips._space import ParameterError
+from servogym.sim._loop import INTEGRATORS, REASONS
+from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics, compute_metrics
+from servogym.sim._multiloop import multi_closed_loop, work_size
+from servogym.sim._runner import TRAVEL_MARGIN, Traces, current_loop_tau, default_substeps
+
+
+@dataclasses.dataclass(frozen=True)
+class Sequencing:
+    """How one chip family sequences its axes within a servo cycle (an assumption).
+
+    Attributes:
+        ident: The assumption's id in the family's spec (``"PMD-M1"``).
+        choices: The choices, the default first.
+        period_per_axis: Whether the shortest servo period grows with the number of enabled
+            axes (PMD: ``n_axes * min_sample_time_us``).
+    """
+
+    ident: str
+    choices: tuple[str, ...]
+    period_per_axis: bool
+
+    @property
+    def default(self) -> str:
+        """The default choice."""
+        return self.choices[0]
+
+
+SEQUENCING: dict[str, Sequencing] = {
+    "pmd": Sequencing("PMD-M1", ("in_turn", "simultaneous"), period_per_axis=True),
+    "pmac": Sequencing("PMAC-M1", ("same_interrupt", "in_turn"), period_per_axis=False),
+    "parker6k": Sequencing("PK-M1", ("each_sample", "in_turn"), period_per_axis=False),
+}
+"""Per chip family: the axis-sequencing assumption, default first (docs/chips/*.md):
+
+* PMD ``in_turn``: every encoder latched at the cycle start, the axes computed in turn, so
+  axis k's command goes out k per-axis slots (the model's minimum sample time) after axis
+  0's; ``simultaneous``: every axis with the single-axis latency.
+* PMAC ``same_interrupt``: every motor servoed at the same servo interrupt, each command
+  after the single-motor latency (PMAC-A14); ``in_turn``: motor k's command k servo
+  computations later, 1 % of the servo period each (the Turbo User Manual's ~1 % of the CPU
+  per motor at 2.25 kHz).
+* Parker ``each_sample``: both (every) axes updated each servo sample with the single-axis
+  latency (PK-A9); ``in_turn``: axis k's command k / n_axes of the period later.
+"""
+
+PMAC_MOTOR_FRACTION = 0.01
+"""PMAC-M1 ``in_turn``: servo computation per motor as a fraction of the servo period."""
+
+
+def _n_axes_max(params: Any) -> int:
+    model = family_of(params).models[params.model]
+    return int(getattr(model, "n_axes", getattr(model, "n_motors", 1)))
+
+
+def check_machine(params: Sequence[Any]) -> Any:
+    """Check that parameter sets make one controller's axes; returns the chip family.
+
+    Every set must be of one family and one chip model, with one servo period, and the
+    model must have that many axes. On a PMD chip the cycle is time-sliced per enabled axis
+    ("4 axis * 154 us/axis" [C]), so ``sample_time_us >= n_axes * min_sample_time_us``.
+
+    Raises:
+        ParameterError: naming the parameter, the value and the legal range.
+    """
+    if isinstance(params, str | bytes) or not isinstance(params, Sequence) or not params:
+        raise ParameterError(
+            f"params must be a non-empty sequence of parameter sets, one per axis; got {params!r}"
+        )
+    chip = family_of(params[0])
+    model = params[0].model
+    for i, p in enumerate(params):
+        if family_of(p) is not chip or p.model != model:
+            raise ParameterError(
+                f"every axis of one controller must be the same chip model; axis 0 is "
+                f"{model!r} ({chip.name}), axis {i} is {p.model!r} ({family_of(p).name})"
+            )
+        if chip.sample_time_s(p) != chip.sample_time_s(params[0]):
+            raise ParameterError(
+                f"every axis of one controller runs at one servo period; axis 0 at "
+                f"{chip.sample_time_s(params[0])!r} s, axis {i} at {chip.sample_time_s(p)!r} s"
+            )
+    n, n_max = len(params), _n_axes_max(params[0])
+    if n > n_max:
+        raise ParameterError(
+            f"the {model} has at most {n_max} axes; got {n} parameter sets (1 <= n_axes <= {n_max})"
+        )
+    if SEQUENCING[chip.name].period_per_axis:
+        slot = chip.models[model].min_sample_time_us
+        if params[0].sample_time_us < n * slot:
+            raise ParameterError(
+                f"sample_time_us must satisfy {n * slot} <= sample_time_us <= 65535 for {n} "
+                f"enabled axes on the {model} (the cycle is time-sliced, {slot} us per axis); "
+                f"got sample_time_us={params[0].sample_time_us}"
+            )
+    return chip
+
+
+def machine_params(chip_model: str, n_axes: int, values: Any = None) -> list[Any]:
+    """Default parameter sets of ``n_axes`` axes of one chip, the period set for them.
+
+    A PMD chip's period is ``n_axes`` times the model's default per-axis sample time; the
+    other families' does not depend on the number of axes. ``values`` (a mapping, or one
+    mapping per axis) update the defaults.
+    """
+    from servogym.chips._family import get_chip
+
+    chip, chip_model = get_chip(chip_model)
+    model = chip.models[chip_model]
+    per_axis = values if isinstance(values, Sequence) else [values or {}] * n_axes
+    extra: dict[str, Any] = {}
+    if SEQUENCING[chip.name].period_per_axis:
+        extra["sample_time_us"] = n_axes * model.sample_time_us
+    out = [chip.make_params(chip_model, {**extra, **dict(v or {})}) for v in per_axis]
+    check_machine(out)
+    return out
+
+
+def axis_latencies(params: Sequence[Any], assumptions: Any = None, sequencing: str | None = None):
+    """Each axis's loop latency (s) under the family's sequencing assumption.
+
+    ``min(base + k * stagger, period)`` for axis k, with ``base`` the single-axis latency of
+    the ``loop_latency`` assumption and ``stagger`` the sequencing choice's (0 for
+    ``simultaneous``, ``same_interrupt``, ``each_sample``).
+    """
+    chip = check_machine(params)
+    seq = SEQUENCING[chip.name]
+    choice = seq.default if sequencing is None else sequencing
+    if choice not in seq.choices:
+        raise ParameterError(
+            f"assumption {seq.ident} sequencing must be one of "
+            f"{', '.join(repr(c) for c in seq.choices)}; got sequencing={choice!r}."
+        )
+    period = chip.sample_time_s(params[0])
+    stagger = 0.0
+    if choice == "in_turn":
+        if chip.name == "pmd":
+            stagger = chip.models[params[0].model].min_sample_time_us * 1e-6
+        elif chip.name == "pmac":
+            stagger = PMAC_MOTOR_FRACTION * params[0].servo_period_s
+        else:
+            stagger = period / len(params)
+    return [min(chip.loop_latency_s(p, assumptions) + k * stagger, period)
+            for k, p in enumerate(params)]  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class MultiEpisodeResult:
+    """One episode of every axis.
+
+    Attributes:
+        metrics: Per axis, its :class:`EpisodeMetrics` (a divergence of any axis ends the
+            episode of all; ``diverged`` is set on every axis).
+        axis: The axis whose divergence ended the episode, -1 if none.
+        traces: Per axis, its :class:`Traces` when asked for.
+    """
+
+    metrics: tuple[EpisodeMetrics, ...]
+    axis: int = -1
+    traces: tuple[Traces, ...] | None = None
+
+
+class MultiServoLoop:
+    """N axes of one controller closed around a multi-axis plant, one compiled call per episode.
+
+    Args:
+        plant: A built multi-axis plant (``servogym.plants.MULTI_PLANTS[...].build()``),
+            or a single-axis plant (then one axis).
+        params: One parameter set per axis, in the plant's axis order
+            (:func:`check_machine`; :func:`machine_params` gives defaults).
+        assumptions: The chip's assumption switches (every axis), ``None``: defaults.
+        sequencing: The family's axis-sequencing choice (:data:`SEQUENCING`); ``None``:
+            its default.
+        integrator, substeps, max_error_counts, settle_band_counts: As for
+            :class:`~servogym.sim.ServoLoop` (``max_error_counts`` for every axis).
+    """
+
+    def __init__(
+        self,
+        plant: Any,
+        params: Sequence[Any],
+        assumptions: Any = None,
+        *,
+        sequencing: str | None = None,
+        integrator: str = "rk4",
+        substeps: int | None = None,
+        max_error_counts: int | None = None,
+        settle_band_counts: float | None = None,
+    ) -> None:
+        if integrator not in INTEGRATORS:
+            raise ValueError(
+                f"integrator must be one of {', '.join(map(repr, INTEGRATORS))}; "
+                f"got integrator={integrator!r}"
+            )
+        if substeps is not None and (
+            isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1
+        ):
+            raise ValueError(f"substeps must be an integer >= 1; got substeps={substeps!r}")
+        self.ios = tuple(plant.ios) if hasattr(plant, "ios") else (plant.io,)
+        if len(params) != len(self.ios):
+            raise ParameterError(
+                f"the {plant.family.name!r} plant has {len(self.ios)} axes; give one "
+                f"parameter set per axis, got {len(params)}"
+            )
+        model = plant.model
+        if model.nq != model.nv:
+            raise ValueError(f"the servo loop integrates hinge and slide joints only (nq == nv); "
+                             f"got nq={model.nq}, nv={model.nv}")  # fmt: skip
+        self.plant = plant
+        self.integrator = integrator
+        self.full_stages = bool(plant.family.position_stages)
+        self.assumptions = assumptions
+        self.sequencing = sequencing
+        self.max_error_counts = max_error_counts
+        self.settle_band_counts = settle_band_counts
+        self._substeps = substeps
+        n = len(self.ios)
+        self._work = np.zeros(work_size(model.nv, n))
+        self._amp = np.zeros((n, 2))
+        self._origin = np.zeros(n, np.int64)
+        self.chip: Any = None
+        self.set_params(params)
+        self._state = np.stack([self.chip.new_state() for _ in range(n)])
+
+    @property
+    def n_axes(self) -> int:
+        """Number of axes."""
+        return len(self.ios)
+
+    def set_params(self, params: Sequence[Any]) -> None:
+        """Load new parameter sets (one per axis); the filter states stay."""
+        chip = check_machine(list(params))
+        if self.chip is not None and chip is not self.chip:
+            self._state = np.stack([chip.new_state() for _ in self.ios])
+        self.chip = chip
+        arrays = [chip.kernel_arrays(p, self.assumptions) for p in params]
+        self._p = np.ascontiguousarray(np.stack([x[0] for x in arrays]))
+        self._a = np.ascontiguousarray(np.stack([x[1] for x in arrays]))
+        self.params = list(params)
+        self.dt = chip.sample_time_s(params[0])
+        self.latencies_s = axis_latencies(self.params, self.assumptions, self.sequencing)
+        if self._substeps is not None:
+            self.substeps = self._substeps
+        elif self.integrator == "rk4":
+            self.substeps = default_substeps(self.dt)
+        else:
+            self.substeps = 1
+        self.plant.set_timestep(self.dt / self.substeps)
+
+    def run(
+        self,
+        profiles: Sequence[Any],
+        *,
+        start_counts: Sequence[int] | None = None,
+        traces: bool = False,
+        reset: bool = True,
+    ) -> MultiEpisodeResult:
+        """Run one episode of every axis along its profile.
+
+        A profile shorter than the longest holds its last position (velocity and
+        acceleration 0) to the episode's end.
+
+        Args:
+            profiles: One chip profile per axis (``position``, ``velocity``,
+                ``acceleration``, ``start``).
+            start_counts, traces, reset: As for :meth:`ServoLoop.run`, per axis.
+        """
+        n = self.n_axes
+        if len(profiles) != n:
+            raise ValueError(f"give one profile per axis ({n}); got {len(profiles)}")
+        ticks = max(len(p.position) for p in profiles)
+        if ticks == 0:
+            raise ValueError("profiles have no ticks; an episode needs at least one")
+        pos = np.zeros((n, ticks), np.int64)
+        vel = np.zeros((n, ticks), np.int64)
+        acc = np.zeros((n, ticks), np.int64)
+        for i, p in enumerate(profiles):
+            m = len(p.position)
+            pos[i, :m] = p.position
+            pos[i, m:] = p.position[-1] if m else int(p.start)
+            vel[i, :m] = p.velocity
+            acc[i, :m] = p.acceleration
+        if reset:
+            self.plant.reset()
+            self._state[:] = 0
+            self._amp[:] = 0.0
+            for i, io in enumerate(self.ios):
+                start = int(profiles[i].start if start_counts is None else start_counts[i])
+                q0 = self.plant.data.qpos[io.qpos_adr]
+                self._origin[i] = int(np.floor(q0 * io.counts_per_unit)) - start
+        f = np.array
+        lo, hi, max_err = [], [], []
+        for io in self.ios:
+            span = io.travel_max - io.travel_min
+            lo.append(io.travel_min + TRAVEL_MARGIN * span)
+            hi.append(io.travel_max - TRAVEL_MARGIN * span)
+            me = self.max_error_counts
+            max_err.append(min(int(span * io.counts_per_unit), 2**31 - 1) if me is None else me)
+        out_actual = np.zeros((n, ticks), np.int64)
+        out_command = np.zeros((n, ticks), np.int64)
+        out_current = np.zeros((n, ticks))
+        m, d = self.plant.model, self.plant.data
+        ios = self.ios
+        n_run, reason, axis = multi_closed_loop(
+            m._address, d._address, d.qpos, d.qvel, d.qacc, d.qacc_warmstart, d.ctrl,
+            f([io.qpos_adr for io in ios], np.int64), f([io.qvel_adr for io in ios], np.int64),
+            f([io.ctrl_index for io in ios], np.int64), INTEGRATORS[self.integrator],
+            self.substeps, self.full_stages, float(self.dt), f(self.latencies_s, float),
+            f([current_loop_tau(io.current_bandwidth_hz) for io in ios], float),
+            f([io.counts_per_unit for io in ios], float), f(lo, float), f(hi, float),
+            f(max_err, np.int64), f([io.amp_amps_per_count for io in ios], float),
+            f([io.peak_current_a for io in ios], float),
+            f([io.torque_constant_nm_per_a for io in ios], float), self._origin, self._amp,
+            self.chip.code, self._state, self._p, self._a, pos, vel, acc, out_actual,
+            out_command, out_current, self._work,
+        )  # fmt: skip
+        metrics = tuple(
+            self._metrics(
+                i, pos[i], int(profiles[i].start), out_actual[i], out_command[i], n_run, reason
+            )
+            for i in range(n)
+        )
+        tr = None
+        if traces:
+            tr = tuple(
+                Traces(
+                    time_s=np.arange(n_run) * self.dt,
+                    commanded=pos[i, :n_run].copy(),
+                    actual=out_actual[i, :n_run].copy(),
+                    error=((pos[i, :n_run] - out_actual[i, :n_run] + 2**31) % 2**32) - 2**31,
+                    command=out_command[i, :n_run].copy(),
+                    current_a=out_current[i, :n_run].copy(),
+                )
+                for i in range(n)
+            )
+        return MultiEpisodeResult(metrics=metrics, axis=int(axis), traces=tr)
+
+    def _metrics(self, i, pos, start, actual, command, n_run, reason) -> EpisodeMetrics:
+        changes = np.flatnonzero(np.diff(pos, prepend=start) != 0)
+        move_end = int(changes[-1]) if changes.size else -1
+        target = int(pos[-1])
+        distance = ((target - start + 2**31) % 2**32) - 2**31
+        direction = int(np.sign(distance)) if move_end >= 0 else 0
+        band = self.settle_band_counts
+        if band is None:
+            band = max(4.0, 0.002 * abs(distance))
+        limit = self.chip.motor_limit(self.params[i])
+        vals = compute_metrics(
+            pos, actual, command, n_run, move_end, target, direction, self.dt, float(band), limit
+        )
+        return EpisodeMetrics(
+            **{name: float(v) for name, v in zip(METRIC_NAMES, vals, strict=False)},
+            settled=bool(vals[-1]),
+            diverged=reason != 0,
+            divergence_tick=n_run - 1 if reason != 0 else -1,
+            divergence_reason=REASONS[int(reason)],
+            n_ticks=int(n_run),
+            dt=self.dt,
+        )
+
+
+__all__ = [
+    "SEQUENCING",
+    "MultiEpisodeResult",
+    "MultiServoLoop",
+    "Sequencing",
+    "axis_latencies",
+    "check_machine",
+    "machine_params",
+]
