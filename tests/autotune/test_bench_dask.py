@@ -2,7 +2,7 @@
 ``servogym benchmark --scheduler``.
 
 A LocalCluster of two worker processes (one thread each) runs a small benchmark (2 instances x
-2 tuners x 2 seeds, budget 3): the records stored equal the in-process run's cell for cell
+2 tuners x 2 seeds, budget 2): the records stored equal the in-process run's cell for cell
 (timing fields aside); a worker killed mid-run loses nothing and stores nothing twice; an
 interrupted run resumed with ``--scheduler`` runs only the missing jobs.
 """
@@ -36,8 +36,8 @@ from servogym.cli import app
 SUITE_NAME = "servobench-v0"
 SUITE = get_suite(SUITE_NAME)
 IDS = SUITE.ids("train")[:2]
-TUNERS = ["random", "tpe"]
-BUDGET = 3
+TUNERS = ["random", "cmaes"]
+BUDGET = 2
 SEEDS = [0, 1]
 TIMING = ("wall_s", "t")
 """Fields that measure time: the only ones that may differ between two runs of a job."""
@@ -84,6 +84,8 @@ def in_process(tmp_path_factory) -> dict[str, dict]:
     for tuner in TUNERS:
         s0, s1 = (recs[Job(tuner, IDS[0], s, BUDGET).key]["cost"] for s in SEEDS)
         assert s0 != s1
+    a, b = (recs[Job(tuner, IDS[0], 0, BUDGET).key]["best_values"] for tuner in TUNERS)
+    assert a != b
     return recs
 
 
@@ -98,7 +100,7 @@ def test_a_record_is_stored_once(tmp_path):
     # The same job arriving again (a rerun after a worker died) leaves the first record.
     assert store_record(tmp_path, job, {**first, "cost": [2.0], "wall_s": 9.0}) is False
     assert load_job(tmp_path, job) == first
-    assert [p.name for p in (tmp_path / "jobs").rglob("*") if p.is_file()] == ["s0-b3.json"]
+    assert [p.name for p in (tmp_path / "jobs").rglob("*") if p.is_file()] == [f"s0-b{BUDGET}.json"]
     # A damaged record is not a finished job: the next record replaces it.
     (tmp_path / "jobs" / job.key).write_text("{")
     assert load_job(tmp_path, job) is None
