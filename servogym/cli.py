@@ -216,15 +216,18 @@ def chips(
 def plants(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON for machines.")] = False,
 ) -> None:
-    """List plant families with every parameter, its unit, nominal value and range."""
-    from servogym.plants import describe_plants
+    """List plant families (single- and multi-axis, with the number of axes) with every
+    parameter, its unit, nominal value and range."""
+    from servogym.plants import describe_multi_plants, describe_plants
 
-    described = describe_plants()
+    described = describe_plants() + describe_multi_plants()
     if as_json:
         typer.echo(json.dumps(described, indent=2))
         return
     for fam in described:
-        table = Table(title=f"{fam['name']}: {fam['description']}", title_justify="left")
+        n = fam.get("n_axes", 1)
+        axes = f" ({n} axes: {', '.join(fam['axes'])})" if n > 1 else " (1 axis)"
+        table = Table(title=f"{fam['name']}{axes}: {fam['description']}", title_justify="left")
         for col in ("parameter", "unit", "nominal", "range", "sampling", "randomised"):
             table.add_column(col, no_wrap=col == "parameter")
         for p in fam["params"]:

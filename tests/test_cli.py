@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 from servogym.chips import families, get_chip
 from servogym.chips.pmd import PMDParams, import_params, to_json
 from servogym.cli import app
-from servogym.plants import PLANTS
+from servogym.plants import MULTI_PLANTS, PLANTS
 
 runner = CliRunner()
 
@@ -53,7 +53,7 @@ def test_chips_says_where_example_defaults_come_from():
 def test_plants_json_lists_every_family():
     result = runner.invoke(app, ["plants", "--json"])
     assert result.exit_code == 0
-    assert {f["name"] for f in json.loads(result.output)} == set(PLANTS)
+    assert {f["name"] for f in json.loads(result.output)} == set(PLANTS) | set(MULTI_PLANTS)
 
 
 @pytest.mark.parametrize("fmt", ["cmotion", "host", "json"])

@@ -1,6 +1,7 @@
 """MuJoCo servo plants with physical parameters, edited in place between episodes.
 
-Four families (:data:`PLANTS`): ``rotary``, ``two-mass``, ``vertical-axis``, ``arm``. Each
+Four single-axis families (:data:`PLANTS`): ``rotary``, ``two-mass``, ``vertical-axis``, ``arm``;
+two multi-axis ones (:data:`MULTI_PLANTS`): ``two-link-arm``, ``xy-stage``. Each
 has named SI parameters with a nominal value, a legal (realistic) range and a sampling
 distribution; :meth:`PlantFamily.build` compiles a :class:`Plant`, whose
 :meth:`Plant.set_params` changes the instance in place. :class:`AxisIO` holds what the
@@ -44,8 +45,17 @@ from servogym.plants._feasibility import (
     feasible_range,
     required_peak_effort,
 )
+from servogym.plants._multi import (
+    MULTI_PLANTS,
+    MultiAxisPlant,
+    MultiAxisPlantFamily,
+    TwoLinkArmFamily,
+    XYStageFamily,
+    required_peak_efforts,
+)
 from servogym.plants._registry import (
     PLANTS,
+    describe_multi_plants,
     describe_plants,
     get_plant,
     plant_table_markdown,
@@ -55,6 +65,7 @@ __all__ = [
     "COMMAND_MAX",
     "COMMAND_MIN",
     "DEFAULT_TIMESTEP_S",
+    "MULTI_PLANTS",
     "PEAK_HEADROOM",
     "PLANTS",
     "TIMESTEP_MAX_S",
@@ -62,17 +73,22 @@ __all__ = [
     "ArmFamily",
     "AxisIO",
     "MotorFeasibilityError",
+    "MultiAxisPlant",
+    "MultiAxisPlantFamily",
     "Need",
     "Plant",
     "PlantFamily",
     "PlantParam",
     "PlantParameterError",
     "RotaryFamily",
+    "TwoLinkArmFamily",
     "TwoMassFamily",
     "VerticalAxisFamily",
+    "XYStageFamily",
     "amplifier_alpha",
     "amplifier_current",
     "check_motor",
+    "describe_multi_plants",
     "describe_plants",
     "encoder_counts",
     "feasible_range",
@@ -81,4 +97,5 @@ __all__ = [
     "parse_plant_ranges",
     "plant_table_markdown",
     "required_peak_effort",
+    "required_peak_efforts",
 ]

@@ -8,6 +8,7 @@ from typing import Any
 
 from servogym.plants._base import PlantFamily, PlantParam, _fmt
 from servogym.plants._families import ArmFamily, RotaryFamily, TwoMassFamily, VerticalAxisFamily
+from servogym.plants._multi import MULTI_PLANTS
 
 PLANTS: dict[str, PlantFamily] = {
     f.name: f for f in (RotaryFamily(), TwoMassFamily(), VerticalAxisFamily(), ArmFamily())
@@ -25,6 +26,13 @@ def get_plant(name: str) -> PlantFamily:
     try:
         return PLANTS[name]
     except (KeyError, TypeError):
+        if isinstance(name, str) and name in MULTI_PLANTS:
+            multi = MULTI_PLANTS[name]
+            raise KeyError(
+                f"{name!r} is a multi-axis plant ({multi.n_axes} axes: {', '.join(multi.axes)}); "
+                f"this takes a single-axis plant family: {', '.join(PLANTS)} (multi-axis plants "
+                "run today in servogym.sim.MultiServoLoop; docs/plants.md, Multi-axis plants)"
+            ) from None
         close = difflib.get_close_matches(str(name), list(PLANTS), n=3)
         hint = f" Did you mean {', '.join(close)}?" if close else ""
         raise KeyError(
@@ -48,6 +56,23 @@ def describe_plants() -> list[dict[str, Any]]:
             "params": [{**dataclasses.asdict(p), "type": p.type_name} for p in family.params],
         }
         for family in PLANTS.values()
+    ]
+
+
+def describe_multi_plants() -> list[dict[str, Any]]:
+    """As :func:`describe_plants`, for the multi-axis families (:data:`MULTI_PLANTS`), each
+    with ``n_axes``, ``axes`` (the axis names, in axis order) and ``joint_units``."""
+    return [
+        {
+            "name": family.name,
+            "description": family.description,
+            "joint_unit": family.joint_unit,
+            "n_axes": family.n_axes,
+            "axes": list(family.axes),
+            "joint_units": list(family.joint_units),
+            "params": [{**dataclasses.asdict(p), "type": p.type_name} for p in family.params],
+        }
+        for family in MULTI_PLANTS.values()
     ]
 
 
