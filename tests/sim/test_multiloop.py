@@ -88,7 +88,7 @@ def axis_moves(plant, n_ticks, fraction):
             int(f * 0.02 * (io.travel_max - io.travel_min) * io.counts_per_unit),
             n_ticks // 3,
             n_ticks,
-        )  # fmt: skip
+        )
         for io, f in zip(plant.ios, fraction, strict=True)
     ]
 
@@ -178,7 +178,7 @@ def test_a_controller_is_one_chip_model_at_one_period():
 
 def test_the_elbow_moving_alone_torques_the_shoulder():
     arm = MULTI_PLANTS["two-link-arm"].build()
-    model, params = chip_params("pmd", 2)
+    _model, params = chip_params("pmd", 2)
     loop = MultiServoLoop(arm, params)
     hold, elbow = axis_moves(arm, 600, (0.0, 1.0))
     result = loop.run([hold, elbow], traces=True)
