@@ -219,7 +219,7 @@ CONTRADICTIONS: list[tuple[list[str], str, str]] = [
     ([*BASE["benchmark"][:-2], "--reference", "--seed-from", "{o}/nope"], "--seed-from", "nope"),
     ([*BASE["benchmark"], "--seed-from", "{d}"], "--seed-from", "--reference"),
     ([*BASE["benchmark"][:-2], "--reference", "--seed-from", "{d}"], "--seed-from",
-     "holds no servobench-v0.json"),
+     "holds no servobench-v1.json"),
     (["benchmark", "--out", "{d}", "--dry-run", "--reference", "--seed-from", "{d}/folder"],
      "--seed-from", "no finished"),
     ([*BASE["benchmark"], "--reference"], "--tuners", "--reference"),
@@ -276,7 +276,7 @@ def files(tmp_path_factory) -> Path:
     parker = families()["parker6k"]
     (d / "p6250.prg").write_text(parker.export(parker.make_params("6250"), "6250"))
     (d / "folder").mkdir()
-    (d / "servobench-v0.json").write_text('{"instances": {}}')
+    (d / "servobench-v1.json").write_text('{"instances": {}}')
     os.mkfifo(d / "fifo")
     (d / "empty.json").write_text("")
     (d / "binary.bin").write_bytes(b"\x00\xff\xfe\x80" * 10)
