@@ -915,3 +915,32 @@ def worst_sampled_efforts(family: MultiAxisPlantFamily | str) -> tuple[Any, ...]
             if worst[k] is None or need.total_nm > worst[k].total_nm:
                 worst[k] = need
     return tuple(worst)
+
+
+def multi_feasibility_table_markdown() -> str:
+    """The table of docs/plants.md, "Multi-axis plants": per family and axis, the peak need
+    of the nominal plant, of the other mounting or drives, and of the worst corner of the
+    default sampling box (:func:`required_peak_efforts`, :func:`worst_sampled_efforts`)."""
+    lines = [
+        "| Family | Case | Axis | Peak need at the motor (N*m; N for a linear motor) | Of the "
+        "motor's peak |",
+        "|---|---|---|---|---|",
+    ]
+    for fam in MULTI_PLANTS.values():
+        if isinstance(fam, TwoLinkArmFamily):
+            other = ("vertical (vertical=1)", {"vertical": 1})
+        else:
+            other = ("X linear motor, Y ball screw", {"x_drive": 1, "y_drive": 0})
+        cases = [
+            ("nominal", required_peak_efforts(fam)),
+            (other[0], required_peak_efforts(fam, other[1])),
+            ("worst corner of the sampled ranges", worst_sampled_efforts(fam)),
+        ]
+        for case, needs in cases:
+            for axis, n in zip(fam.axes, needs, strict=True):
+                lines.append(
+                    f"| {fam.name} | {case} | {axis} | {n.total_nm:.3g} (inertia "
+                    f"{n.inertia_nm:.3g}, gravity and Coriolis {n.gravity_nm:.3g}, Coulomb "
+                    f"{n.coulomb_nm:.3g}, viscous {n.viscous_nm:.3g}) | {n.fraction:.0%} |"
+                )
+    return "\n".join(lines)

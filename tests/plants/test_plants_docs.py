@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from servogym.plants import PLANTS, AxisIO, plant_table_markdown
+from servogym.plants import MULTI_PLANTS, PLANTS, AxisIO, plant_table_markdown
 from servogym.plants._registry import param_row
 
 DOC = (Path(__file__).parents[2] / "docs" / "plants.md").read_text()
@@ -32,7 +32,8 @@ def test_family_table_matches_code(name):
 
 
 def test_every_parameter_row_in_the_doc_is_in_the_code():
-    known = {param_row(p) for family in PLANTS.values() for p in family.params}
+    families = (*PLANTS.values(), *MULTI_PLANTS.values())
+    known = {param_row(p) for family in families for p in family.params}
     rows = [line for line in DOC.splitlines() if line.startswith("| `") and "_" in line]
     io_fields = {f"| `{f}` |" for f in AxisIO.__dataclass_fields__}
     for row in rows:
