@@ -10,10 +10,13 @@ samplers do (TPE spent 17 of 20 evaluations on unsafe sets at budget 20 in servo
    candidate bandwidths) inside its budget; every one of those runs counts, as it would on
    a machine. With a warm start (``--warm-start``) it starts from that set.
 2. **A trust region around the best safe set** (TuRBO's rule, Eriksson et al., 2019): a box
-   of half-width ``r`` in the unit cube, centred on the best feasible trial. ``r`` doubles
-   after :attr:`SafeTuner.success_tolerance` improving trials in a row, halves after
-   :attr:`SafeTuner.failure_tolerance` trials without improvement and after every unsafe
-   trial. ``r`` is a function of the study's trials in number order, never stored.
+   centred on the best feasible trial, with one half-width per register in the unit cube.
+   The registers an unsafe trial moved have theirs halved; those an improving trial moved
+   grow (two improvements double them); every half-width halves after
+   :attr:`SafeTuner.failure_tolerance` trials without improvement. So a register found
+   sensitive (a derivative interval, a feed-forward pair) keeps small steps while the
+   others open up. The half-widths are a function of the study's trials in number order
+   (each trial records the trial it moved from, ``safe_centre``), never stored.
 3. **A safety model on the constraints** (SafeOpt's rule, Sui et al., 2015): one Gaussian
    process per constraint, on the constraint values of the trials near the centre scaled to
    their limit (a gain margin 3 dB short of 6 dB reads 0.5); a candidate is proposed only
@@ -220,10 +223,10 @@ class _Model:
         (the best safe row).
 
         A trial changes the half-widths of the registers it moved away from its centre
-        (the trial it was proposed around): halved when it is unsafe; after
-        :attr:`SafeTuner.success_tolerance` improving trials in a row every half-width
-        doubles, after :attr:`SafeTuner.failure_tolerance` trials without improvement
-        every one halves.
+        (the trial it was proposed around): halved when it is unsafe, grown by
+        ``2 ** (1 / success_tolerance)`` when it improves (so
+        :attr:`SafeTuner.success_tolerance` improvements double them); after
+        :attr:`SafeTuner.failure_tolerance` trials without improvement every one halves.
         """
         tuner = self.tuner
         r = np.full(self.dim, tuner.initial_radius)
@@ -259,9 +262,10 @@ class _Model:
                     r[moved] = np.maximum(r[moved] / 2, tuner.min_radius)
                     wins, losses = 0, 0
                 elif better:
+                    # Only the registers that moved grow: one found sensitive stays small.
+                    grow = 2.0 ** (1.0 / tuner.success_tolerance)
+                    r[moved] = np.minimum(r[moved] * grow, tuner.max_radius)
                     wins, losses = wins + 1, 0
-                    if wins >= tuner.success_tolerance:
-                        r, wins = np.minimum(2 * r, tuner.max_radius), 0
                 else:
                     wins, losses = 0, losses + 1
                     if losses >= fail_tol:
@@ -426,7 +430,7 @@ class SafeTuner(OptunaTuner):
     min_radius = 1.0 / 256
     """Smallest half-width."""
     success_tolerance = 2
-    """Improving trials in a row that double the radius."""
+    """Improvements that double the half-widths of the registers they moved."""
     failure_tolerance = 4
     """Trials without improvement that halve the radius (at least half the dimension)."""
     min_improvement = 1e-3
