@@ -103,8 +103,9 @@ def test_the_budget_is_used_exactly_and_every_set_is_legal(budget):
 def test_a_warm_start_is_the_first_trial_and_each_sample_names_its_centre():
     problem = short_problem("MC2100", "rotary", seed=2)
     design = run_study(problem, "model-based", 9, storage=None, n_workers=2)
-    result = run_study(problem, "safe", 12, storage=None, n_workers=2, batch_size=4,
-                       warm_start=design.best_values)
+    result = run_study(
+        problem, "safe", 12, storage=None, n_workers=2, batch_size=4, warm_start=design.best_values
+    )
     assert result.trials[0].user_attrs["kind"] == "warm_start"
     assert result.trials[0].user_attrs["registers"] == design.best_values
     numbers = {t.number for t in result.trials}
@@ -131,7 +132,7 @@ def test_on_a_cheap_problem_it_is_safer_than_tpe_and_ends_no_worse_than_its_star
             n_workers=2,
             batch_size=4,
             warm_start=design.best_values,
-        )  # fmt: skip
+        )
         for name in ("safe", "tpe")
     }
     safe = runs["safe"]
