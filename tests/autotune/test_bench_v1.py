@@ -231,3 +231,20 @@ def test_report_rows_have_v1_fields_per_family_and_the_default_tuner(tmp_path):
     assert set(summary["rows_by_family"]) == {"PMD", "PMAC"}
     assert (tmp_path / "ecdf_pmac.png").is_file() and (tmp_path / "ecdf_pmd.png").is_file()
     assert "## Summary on the 1 PMAC instances" in (tmp_path / "report.md").read_text()
+
+
+def test_benchmark_worker_processes_start_with_one_blas_thread(monkeypatch):
+    import concurrent.futures as cf
+    import multiprocessing
+    import os
+
+    from servogym.autotune.bench._runner import ONE_THREAD_ENV, one_blas_thread
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")  # a user's own setting is kept
+    ctx = multiprocessing.get_context("spawn")
+    with one_blas_thread(), cf.ProcessPoolExecutor(1, mp_context=ctx) as pool:
+        seen = pool.submit(os.getenv, "OPENBLAS_NUM_THREADS").result()
+        omp = pool.submit(os.getenv, "OMP_NUM_THREADS").result()
+    assert seen == ONE_THREAD_ENV["OPENBLAS_NUM_THREADS"] == "1" and omp == "3"
+    assert "OPENBLAS_NUM_THREADS" not in os.environ and os.environ["OMP_NUM_THREADS"] == "3"

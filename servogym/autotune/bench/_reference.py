@@ -26,16 +26,14 @@ versions of servogym, the chip specs and the libraries.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import datetime
 import functools
 import json
 import math
-import os
 import time
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -249,30 +247,6 @@ def check_pool(
     return None, {"passed": False, "n_checked": len(rejected), "cheaper_failed": rejected}
 
 
-ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-"""Environment of the benchmark's worker processes: one BLAS thread each. The margin analysis
-takes eigenvalues of matrices up to order 160; with one process per core, OpenBLAS's own
-threads only contend (measured: ``eigvals`` 0.49 s a call on the loaded 2-core machine, a
-third of an evaluation's time, against a few ms on one thread)."""
-
-
-@contextlib.contextmanager
-def one_blas_thread() -> Iterator[None]:
-    """Set :data:`ONE_THREAD_ENV` (unless already set) while worker processes start, then
-    restore this process's environment."""
-    saved = {k: os.environ.get(k) for k in ONE_THREAD_ENV}
-    for k, v in ONE_THREAD_ENV.items():
-        os.environ.setdefault(k, v)
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
 def _versions() -> dict[str, str]:
     import importlib.metadata as md
 
@@ -306,6 +280,7 @@ def run_reference(
     import concurrent.futures as cf
     import multiprocessing
 
+    from servogym.autotune.bench._runner import one_blas_thread
     from servogym.autotune.bench._suite import get_suite
 
     config = config or ReferenceConfig.for_suite(suite)
@@ -430,6 +405,7 @@ def refine_from_runs(
     import multiprocessing
 
     from servogym._input import read_json
+    from servogym.autotune.bench._runner import one_blas_thread
     from servogym.autotune.bench._suite import get_suite
 
     doc = read_json(out_path, "the reference data file", max_bytes=1 << 28)

@@ -23,6 +23,7 @@ so one run (seed 0) stands for every seed.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import dataclasses
 import functools
 import json
@@ -30,7 +31,7 @@ import multiprocessing
 import os
 import time
 import uuid
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -260,6 +261,30 @@ def _mismatch(where: str, diff: str) -> ClusterError:
         f"be comparable: {diff}. Install the same servogym and packages on every worker "
         "(docs/benchmark.md, 'On several machines')."
     )
+
+
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+"""Environment of the benchmark's worker processes: one BLAS thread each. The margin analysis
+takes eigenvalues of matrices up to order 160; with one process per core, OpenBLAS's own
+threads only contend (measured: ``eigvals`` 0.49 s a call on the loaded 2-core machine, a
+third of an evaluation's time, against a few ms on one thread)."""
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """Set :data:`ONE_THREAD_ENV` (unless already set) while worker processes start, then
+    restore this process's environment."""
+    saved = {k: os.environ.get(k) for k in ONE_THREAD_ENV}
+    for k, v in ONE_THREAD_ENV.items():
+        os.environ.setdefault(k, v)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def compute_job(job: Job, expected: Mapping[str, str] | None = None) -> dict[str, Any]:
@@ -509,7 +534,7 @@ def run_jobs(
             arrived(job, compute_job(job))
     else:
         ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+        with one_blas_thread(), cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
             futures = {pool.submit(compute_job, job): job for job in ordered}
             try:
                 for fut in cf.as_completed(futures):
