@@ -30,6 +30,7 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python experiments/bench_servo_loop.py
 	$(BIN)/python experiments/bench_tuner_overhead.py
+	$(BIN)/python experiments/bench_multiaxis.py
 
 # The guides and the API reference from the docstrings (mkdocs + mkdocstrings) into site/;
 # strict, so a broken link or reference fails.
