@@ -202,3 +202,17 @@ def test_a_diverging_axis_is_named_and_ends_every_axis():
     result = loop.run([hold, ramp(far, 600, 2000)])
     assert result.axis == 1 and result.metrics[1].divergence_reason == REASONS[TRAVEL]
     assert result.metrics[0].diverged and result.metrics[0].n_ticks < 2000
+
+
+@pytest.mark.parametrize(("family", "doc"), [("pmd", "pmd"), ("pmac", "pmac"),
+                                             ("parker6k", "parker6k")])  # fmt: skip
+def test_each_chip_spec_documents_its_sequencing_switch(family, doc):
+    import pathlib
+
+    text = (pathlib.Path(__file__).parents[2] / "docs" / "chips" / f"{doc}.md").read_text()
+    seq = SEQUENCING[family]
+    default, *alternatives = seq.choices
+    row = f"| {seq.ident} | `sequencing` | `{default}` | " + ", ".join(
+        f"`{a}`" for a in alternatives
+    )
+    assert row + " |" in text
