@@ -302,10 +302,6 @@ class MultiAxisPlant(Plant):
         """Refused: a multi-axis plant has one AxisIO per axis (:attr:`ios`)."""
         return self.family._axis_io(self.model, self.values)
 
-    @io.setter
-    def io(self, value: Any) -> None:
-        pass  # Plant.set_params assigns io; a multi-axis plant keeps ios instead
-
     def set_params(
         self, values: Mapping[str, Any] | None = None, *, keep_state: bool = False, **kw: Any
     ) -> None:
