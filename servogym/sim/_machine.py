@@ -15,6 +15,7 @@ import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from servogym.chips._family import family_of
@@ -274,6 +275,7 @@ class MultiServoLoop:
         start_counts: Sequence[int] | None = None,
         traces: bool = False,
         reset: bool = True,
+        start_qpos: Sequence[float] | None = None,
     ) -> MultiEpisodeResult:
         """Run one episode of every axis along its profile.
 
@@ -284,6 +286,9 @@ class MultiServoLoop:
             profiles: One chip profile per axis (``position``, ``velocity``,
                 ``acceleration``, ``start``).
             start_counts, traces, reset: As for :meth:`ServoLoop.run`, per axis.
+            start_qpos: With ``reset``, each axis's joint position at rest at the start
+                (rad or m) instead of the plant's ``io.start_qpos`` (a contour starts on
+                its path: ``servogym.sim._contour``).
         """
         n = self.n_axes
         if len(profiles) != n:
@@ -302,6 +307,12 @@ class MultiServoLoop:
             acc[i, :m] = p.acceleration
         if reset:
             self.plant.reset()
+            if start_qpos is not None:
+                if len(start_qpos) != n:
+                    raise ValueError(f"give one start_qpos per axis ({n}); got {len(start_qpos)}")
+                for io, q in zip(self.ios, start_qpos, strict=True):
+                    self.plant.data.qpos[io.qpos_adr] = float(q)
+                mujoco.mj_forward(self.plant.model, self.plant.data)
             self._state[:] = 0
             self._amp[:] = 0.0
             for i, io in enumerate(self.ios):
