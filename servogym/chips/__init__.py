@@ -5,6 +5,14 @@ are one declarative table (:mod:`servogym.chips._registers`); :func:`get_chip` f
 by name.
 """
 
+from servogym.chips._axes import (
+    MultiAxisParams,
+    export_axes,
+    import_axes,
+    load_axes,
+    max_axes,
+    save_axes,
+)
 from servogym.chips._family import (
     FAMILY_CODES,
     ChipFamily,
@@ -22,14 +30,20 @@ __all__ = [
     "FILE_FORMATS",
     "ChipFamily",
     "Move",
+    "MultiAxisParams",
     "ParamSpec",
     "ParameterError",
     "ParameterSpace",
     "all_models",
     "detect_format",
+    "export_axes",
     "families",
     "family_of",
     "get_chip",
+    "import_axes",
+    "load_axes",
     "load_params_file",
+    "max_axes",
     "read_params_file",
+    "save_axes",
 ]

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from servogym.chips._axisfile import read_axes_json, write_axes_json
 from servogym.chips._paramfile import FileSchema, check_format
 from servogym.chips._space import ParameterError
 
@@ -125,6 +126,10 @@ class Formats:
         index: The keyword that names the axis (``"axis"``; PMAC: ``"motor"``), which a JSON
             file, holding one set, ignores on export and refuses on import.
         ignore_case: Whether ``fmt`` matches in any case.
+        axis_writers: Format -> ``(axes, assumptions) -> str`` for every format but JSON:
+            the file of several axes (``axes`` maps axis number -> set, in axis order).
+        axis_readers: Format -> ``(text, model) -> (chip, {axis: set})`` for every format
+            but JSON.
     """
 
     def __init__(
@@ -136,6 +141,8 @@ class Formats:
         *,
         index: str = "axis",
         ignore_case: bool = False,
+        axis_writers: Mapping[str, Callable[..., str]] | None = None,
+        axis_readers: Mapping[str, Callable[..., Any]] | None = None,
     ) -> None:
         self.schema = schema
         self.extensions = dict(extensions)
@@ -143,6 +150,8 @@ class Formats:
         self.readers = dict(readers)
         self.index = index
         self.ignore_case = ignore_case
+        self.axis_writers = dict(axis_writers or {})
+        self.axis_readers = dict(axis_readers or {})
 
     def check(self, fmt: Any) -> str:
         """``fmt`` if it names one of the formats, else a ParameterError listing them."""
@@ -168,6 +177,33 @@ class Formats:
                 )
             return self.schema.read_params(text, model)
         return self.readers[fmt](text, model, **kw)
+
+    def export_axes(
+        self, axes: Mapping[int, Any], fmt: str, assumptions: Any = None, **kw: Any
+    ) -> str:
+        """The file of several axes' sets (see :func:`servogym.chips.export_axes`).
+
+        Args:
+            axes: Axis (PMAC: motor) number -> parameter set, checked by the caller.
+            fmt: One of the family's formats.
+            assumptions: Recorded in the file; default all defaults.
+            **kw: ``metrics``, ``notes``, ``created`` (JSON only).
+        """
+        fmt = self.check(fmt)
+        if fmt == "json":
+            return write_axes_json(self.schema, axes, assumptions, noun=self.index, **kw)
+        if kw:
+            raise ParameterError(
+                f"{', '.join(sorted(kw))} apply to fmt='json' only; got them with fmt={fmt!r}."
+            )
+        return self.axis_writers[fmt](dict(sorted(axes.items())), assumptions)
+
+    def import_axes(self, text: str, fmt: str, model: Any = None) -> dict[int, Any]:
+        """Axis (PMAC: motor) number -> set, read from a file of one or several axes."""
+        fmt = self.check(fmt)
+        if fmt == "json":
+            return read_axes_json(self.schema, text, model, noun=self.index)[0]
+        return self.axis_readers[fmt](text, model)
 
     def functions(
         self, module: str, params: str, formats: str, kw: str, index_doc: str = ""

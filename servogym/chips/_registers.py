@@ -59,9 +59,15 @@ class Register(ParamSpec):
     Attributes:
         spelling: The register's :class:`Spelling` in each file dialect of the family
             (``"navigator"``, ``"magellan"``, ``"ivar"``, ``"6000"`` ...).
+        controller_wide: Whether the register is one setting of the whole controller rather
+            than one per axis (the axes are the table's dimension, as CMSIS-SVD's ``dim``):
+            every axis of a multi-axis set holds the same value, and a multi-axis file
+            writes it once where its format has a controller-wide command
+            (:mod:`servogym.chips._axes`).
     """
 
     spelling: Mapping[str, Spelling] = dataclasses.field(default_factory=dict)
+    controller_wide: bool = False
 
     @property
     def signed(self) -> bool:
@@ -101,6 +107,11 @@ class RegisterTable(Mapping[str, Register]):
     def names(self) -> tuple[str, ...]:
         """Every register's name, in kernel-array order."""
         return tuple(self._by_name)
+
+    @property
+    def controller_wide(self) -> tuple[str, ...]:
+        """The registers that are one setting of the whole controller, in table order."""
+        return tuple(r.name for r in self.rows if r.controller_wide)
 
     def index(self) -> dict[str, int]:
         """Position of each register in the kernel array."""

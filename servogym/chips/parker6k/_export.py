@@ -26,6 +26,7 @@ from typing import Any
 
 from servogym import __version__
 from servogym._files import seal, unseal
+from servogym.chips._axisfile import axes_text, check_header_axes, header_axes
 from servogym.chips._formats import Formats, check_index, resolve_model
 from servogym.chips._formats import read_header as read_header_lines
 from servogym.chips._paramfile import ExtraKey, FileSchema, assumption_lines
@@ -126,6 +127,10 @@ def parse_decimal(text: str, register: str) -> int:
 # --------------------------------------------------------------------------------------
 
 _HEADER_SWITCH = re.compile(r"^\s*sgenb\s+tick\s*=\s*(\S+)\s+set\s*=\s*(\S+)\s*$")
+_AXIS_SWITCH = re.compile(
+    r"^\s*sgenb\s+axis\s*=\s*(\S+)"  # a file of several axes: the axis first
+    r"\s+tick\s*=\s*(\S+)\s+set\s*=\s*(\S+)\s*$"
+)
 
 
 def _split(text: str) -> list[tuple[int, str, str]]:
@@ -154,23 +159,35 @@ def read_header(text: str) -> dict[str, Any]:
     switches = [(n, *m.groups()) for n, c in lines if (m := _HEADER_SWITCH.match(c))]
     if switches:
         fields["sgenb"] = switches
+    per_axis = [(n, *m.groups()) for n, c in lines if (m := _AXIS_SWITCH.match(c))]
+    if per_axis:
+        fields["sgenb_axes"] = per_axis
     return fields
 
 
-def _header_lines(p: Parker6kParams, a: Parker6kAssumptions, axis: int, fmt: str) -> list[str]:
+def _header_lines(
+    axes: Mapping[int, Parker6kParams], a: Parker6kAssumptions, fmt: str
+) -> list[str]:
+    """The provenance header; ``axis: 2`` and ``sgenb tick=.. set=..`` lines for one axis,
+    ``axes: 1, 2`` and ``sgenb axis=.. tick=.. set=..`` lines for several."""
     form = "comma-separated axis fields" if fmt == "6250" else "axis-prefixed commands"
+    numbers = list(axes)
+    p = axes[numbers[0]]
     lines = [
         f"servogym Parker 6000-series parameter set, {fmt} command file ({form})",
         f"chip_model: {p.model}",
         f"form: {fmt}",
-        f"axis: {axis}",
+        f"axis: {numbers[0]}" if len(numbers) == 1 else f"axes: {axes_text(numbers)}",
         f"spec_version: {SPEC_VERSION}",
         f"sample_time_us: {p.sample_time_us}",
         f"servogym_version: {__version__}",
         "units: SMPER in encoder counts (scaling off); gains as assumption PK-A1 says",
     ]
     lines += assumption_lines(a)
-    lines += [f"sgenb tick={t} set={s}" for t, s in p.sgenb]
+    if len(numbers) == 1:
+        lines += [f"sgenb tick={t} set={s}" for t, s in p.sgenb]
+    else:
+        lines += [f"sgenb axis={n} tick={t} set={s}" for n, q in axes.items() for t, s in q.sgenb]
     return lines
 
 
@@ -179,16 +196,25 @@ def _header_lines(p: Parker6kParams, a: Parker6kAssumptions, axis: int, fmt: str
 # --------------------------------------------------------------------------------------
 
 
-def _line(command: str, value: str, axis: int, fmt: str) -> str:
+def _lines(command: str, values: Mapping[int, str], fmt: str) -> list[str]:
+    """The command lines that give each axis its value: a controller-wide command once
+    (``SSFR4``, ``SGSET2``), the 6K form one prefixed line per axis (``1SGP85``, ``2SGP90``),
+    the 6250 form one line of comma-separated fields up to the last axis, an axis not given
+    an empty field (``SGP85,90``; ``SGP,90``; ``SGP85,,90``) [C]."""
     if command in _SYSTEM_COMMANDS:
-        return f"{command}{value}"
+        return [f"{command}{next(iter(values.values()))}"]
     if fmt == "6k":
-        return f"{axis}{command}{value}"
-    return f"{command}{',' * (axis - 1)}{value}"
+        return [f"{axis}{command}{value}" for axis, value in values.items()]
+    fields = [values.get(axis, "") for axis in range(1, max(values) + 1)]
+    return [f"{command}{','.join(fields)}"]
 
 
-def _register_line(register: str, value: int, axis: int, fmt: str) -> str:
-    return _line(COMMANDS[register], format_decimal(value, DECIMALS[register]), axis, fmt)
+def _register_lines(register: str, axes: Mapping[int, Any], fmt: str) -> list[str]:
+    """The lines that set ``register`` of each axis to its value (``axes``: axis -> an
+    object with the register as attribute: a set, or a stored gain set)."""
+    places = DECIMALS[register]
+    values = {n: format_decimal(getattr(q, register), places) for n, q in axes.items()}
+    return _lines(COMMANDS[register], values, fmt)
 
 
 def to_command_file(
@@ -217,20 +243,37 @@ def to_command_file(
         ParameterError: for an illegal set, axis or form.
     """
     p = _SCHEMA.legal_params(params)
-    a = _SCHEMA.legal_assumptions(assumptions)
     fmt = _check_format(fmt)
     if fmt == "json":
         raise ParameterError("to_command_file writes fmt='6250' or fmt='6k'; use to_json.")
-    chip = p.chip
-    _check_form(chip, fmt)
-    axis = _check_axis(chip, axis)
-    lines = [f"; {line}" for line in _header_lines(p, a, axis, fmt)]
-    lines.append(_register_line("ssfr", p.ssfr, axis, fmt))
-    for number, gains in enumerate(p.sgset, start=1):
-        lines += [_register_line(g, getattr(gains, g), axis, fmt) for g in GAIN_FIELDS]
-        lines.append(_line("SGSET", str(number), axis, fmt))
-    lines += [_register_line(r, getattr(p, r), axis, fmt) for r in GAIN_FIELDS]
-    lines += [_register_line(r, getattr(p, r), axis, fmt) for r in ("sgilim", "soffs", "smper")]
+    _check_form(p.chip, fmt)
+    return _command_text({_check_axis(p.chip, axis): p}, fmt, assumptions)
+
+
+def _command_text(
+    axes: Mapping[int, Parker6kParams],
+    fmt: str,
+    assumptions: Parker6kAssumptions | Mapping[str, str] | None,
+) -> str:
+    """The command file of one or several axes (axis -> set, one model, one SSFR).
+
+    Stored set n is every axis's five gains that has a set n, then one ``SGSET<n>`` (a
+    controller-wide command: it stores the gains in force of every axis [A]); an axis with
+    fewer stored sets gets no fields from there on.
+    """
+    sets = {n: _SCHEMA.legal_params(p) for n, p in axes.items()}
+    a = _SCHEMA.legal_assumptions(assumptions)
+    first = next(iter(sets.values()))
+    _check_form(first.chip, fmt)
+    lines = [f"; {line}" for line in _header_lines(sets, a, fmt)]
+    lines += _register_lines("ssfr", sets, fmt)
+    for number in range(1, max(len(p.sgset) for p in sets.values()) + 1):
+        stored = {n: p.sgset[number - 1] for n, p in sets.items() if len(p.sgset) >= number}
+        for g in GAIN_FIELDS:
+            lines += _register_lines(g, stored, fmt)
+        lines += _lines("SGSET", {0: str(number)}, fmt)
+    for r in (*GAIN_FIELDS, "sgilim", "soffs", "smper"):
+        lines += _register_lines(r, sets, fmt)
     return seal("".join(line + "\n" for line in lines), ";")
 
 
@@ -240,10 +283,11 @@ _COMMAND = re.compile(r"^(\d*)\s*([A-Za-z]+)\s*(.*?)\s*$")
 class _Reader:
     """The controller's state as a command file sets it, for one axis."""
 
-    def __init__(self, chip: Parker6kModel, axis: int, fmt: str) -> None:
+    def __init__(self, chip: Parker6kModel, axis: int, fmt: str, several: bool = False) -> None:
         self.chip = chip
         self.axis = axis
         self.fmt = fmt
+        self.several = several  # a file of several axes: an axis may sit a stored set out
         self.space = parameter_space(chip)
         self.values: dict[str, int] = {}
         self.stored: dict[int, GainSet] = {}
@@ -305,6 +349,9 @@ class _Reader:
         return number
 
     def store(self, where: str, number: int) -> None:
+        if self.several and not self.since_store.intersection(GAIN_FIELDS):
+            self.since_store.clear()  # this axis takes no part in stored set ``number``
+            return
         missing = [COMMANDS[g] for g in GAIN_FIELDS if g not in self.since_store]
         if missing:
             raise ParameterError(
@@ -323,6 +370,38 @@ class _Reader:
             )
         self.values.update(self.stored[number].to_dict())
         self.since_store.update(GAIN_FIELDS)  # SGENB names all five at once
+
+    def result(self, switches: list[tuple[int, str, str]]) -> Parker6kParams:
+        """The axis's set, with the SGENB schedule of ``switches`` ``(line, tick, set)``."""
+        axis = self.axis
+        missing = [COMMANDS[r] for r in FIELDS if r not in self.values]
+        if missing:
+            raise ParameterError(
+                f"the command file does not set {', '.join(missing)} for axis {axis}; an "
+                f"import takes no defaults."
+            )
+        numbers = sorted(self.stored)
+        if numbers != list(range(1, len(numbers) + 1)):
+            gap = next(i for i in range(1, MAX_GAIN_SETS + 1) if i not in self.stored)
+            where = f" for axis {axis}" if self.several else ""
+            raise ParameterError(
+                f"the stored gain sets must be numbered from 1 without gaps; the file stores "
+                f"{', '.join(f'SGSET{i}' for i in numbers)}{where} but not SGSET{gap}."
+            )
+        schedule = []
+        for n, tick, number in switches:
+            if not (tick.isdigit() and number.isdigit()):
+                raise ParameterError(
+                    f"line {n}: a schedule line reads '; sgenb tick=<integer> set=<integer>'; "
+                    f"got tick={tick!r} set={number!r}."
+                )
+            schedule.append((int(tick), int(number)))
+        return Parker6kParams(
+            model=self.chip.name,
+            **self.values,
+            sgset=tuple(self.stored[i] for i in numbers),
+            sgenb=tuple(schedule),
+        )
 
 
 def from_command_file(
@@ -371,6 +450,53 @@ def from_command_file(
             f"axis={named_axis}, or axis=None to use the header."
         )
     reader = _Reader(chip, axis, fmt)
+    _execute(text, {axis: reader})
+    params = reader.result(header.get("sgenb", []))
+    unseal(original)
+    return params
+
+
+def _command_axes(text: str, fmt: str, model: str | Parker6kModel | None) -> dict[int, Any]:
+    """Axis number -> set, of a command file of one or several axes: the axes the header
+    names (``axes:`` or ``axis:``), or without a header every axis the file sets.
+
+    Read as the controller executes it, as :func:`from_command_file` reads one axis, with one
+    difference: an axis that sets none of its five gains between two ``SGSET`` takes no part
+    in that stored set (its stored sets end before it; another stored set after that is a
+    gap and refused).
+    """
+    original = text
+    text, _sealed = unseal(text, verify=False)
+    header = read_header(text)
+    chip = _resolve_model(model, header)
+    _check_form(chip, fmt)
+    readers = {n: _Reader(chip, n, fmt, several=True) for n in range(1, chip.n_axes + 1)}
+    _execute(text, readers)
+    found = [n for n, r in readers.items() if r.stored or set(r.values) - {"ssfr"}]
+    if not found:
+        raise ParameterError("the command file sets the registers of no axis.")
+    check_header_axes(header_axes(header), found)
+    plain = header.get("sgenb", [])
+    if plain and len(found) > 1:
+        raise ParameterError(
+            f"line {plain[0][0]}: a schedule line of a file of several axes names its axis "
+            f"('; sgenb axis=<n> tick=<t> set=<n>'); got one without."
+        )
+    per_axis: dict[int, list[tuple[int, str, str]]] = {}
+    for n, number, tick, gain_set in header.get("sgenb_axes", []):
+        if not number.isdigit() or int(number) not in found:
+            raise ParameterError(
+                f"line {n}: the schedule line's axis must be one the file sets "
+                f"({axes_text(found)}); got axis={number!r}."
+            )
+        per_axis.setdefault(int(number), []).append((n, tick, gain_set))
+    sets = {n: readers[n].result(per_axis.get(n, plain)) for n in found}
+    unseal(original)
+    return sets
+
+
+def _execute(text: str, readers: Mapping[int, _Reader]) -> None:
+    """Run a command file's commands on every axis's reader, in file order."""
     for n, code, _comment in _split(text):
         for part in code.split(":"):
             command_text = part.strip()
@@ -391,44 +517,16 @@ def from_command_file(
                     f"{where}: unknown command {name}; the commands of a servogym 6000-series "
                     f"file are {', '.join(_KNOWN)}.{hint}"
                 )
-            field = reader.field(where, name, prefix, value)
-            if field is None:
-                continue
-            if name == "SGSET":
-                reader.store(where, reader.set_number(where, name, field))
-            elif name == "SGENB":
-                reader.enable(where, reader.set_number(where, name, field))
-            else:
-                reader.set_register(where, _REGISTER_OF[name], field)
-    missing = [COMMANDS[r] for r in FIELDS if r not in reader.values]
-    if missing:
-        raise ParameterError(
-            f"the command file does not set {', '.join(missing)} for axis {axis}; an import "
-            f"takes no defaults."
-        )
-    numbers = sorted(reader.stored)
-    if numbers != list(range(1, len(numbers) + 1)):
-        gap = next(i for i in range(1, MAX_GAIN_SETS + 1) if i not in reader.stored)
-        raise ParameterError(
-            f"the stored gain sets must be numbered from 1 without gaps; the file stores "
-            f"{', '.join(f'SGSET{i}' for i in numbers)} but not SGSET{gap}."
-        )
-    schedule = []
-    for n, tick, number in header.get("sgenb", []):
-        if not (tick.isdigit() and number.isdigit()):
-            raise ParameterError(
-                f"line {n}: a schedule line reads '; sgenb tick=<integer> set=<integer>'; got "
-                f"tick={tick!r} set={number!r}."
-            )
-        schedule.append((int(tick), int(number)))
-    params = Parker6kParams(
-        model=chip.name,
-        **reader.values,
-        sgset=tuple(reader.stored[i] for i in numbers),
-        sgenb=tuple(schedule),
-    )
-    unseal(original)
-    return params
+            for reader in readers.values():
+                field = reader.field(where, name, prefix, value)
+                if field is None:
+                    continue
+                if name == "SGSET":
+                    reader.store(where, reader.set_number(where, name, field))
+                elif name == "SGENB":
+                    reader.enable(where, reader.set_number(where, name, field))
+                else:
+                    reader.set_register(where, _REGISTER_OF[name], field)
 
 
 def _resolve_model(model: str | Parker6kModel | None, header: Mapping[str, Any]) -> Parker6kModel:
@@ -477,6 +575,14 @@ FORMAT_TABLE = Formats(
         for form in ("6250", "6k")
     },
     ignore_case=True,
+    axis_writers={
+        form: lambda axes, assumptions, form=form: _command_text(axes, form, assumptions)
+        for form in ("6250", "6k")
+    },
+    axis_readers={
+        form: lambda text, model, form=form: _command_axes(text, form, model)
+        for form in ("6250", "6k")
+    },
 )
 
 export, import_params = FORMAT_TABLE.functions(

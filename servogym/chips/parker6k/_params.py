@@ -306,6 +306,7 @@ TABLE = RegisterTable(
             "(APEX615n guide's table)",
             source="A",
             spelling=_command("SSFR", 0),
+            controller_wide=True,
         ),
     ],
 )

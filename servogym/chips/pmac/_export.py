@@ -24,6 +24,7 @@ from typing import Any
 
 from servogym import __version__
 from servogym._files import seal, unseal
+from servogym.chips._axisfile import axes_text, check_header_axes, header_axes
 from servogym.chips._formats import Formats, check_index, resolve_model
 from servogym.chips._formats import read_header as read_header_lines
 from servogym.chips._paramfile import ExtraKey, FileSchema, assumption_lines
@@ -104,16 +105,21 @@ def coefficient_text(raw: int) -> str:
     return "-" + text if raw < 0 else text
 
 
-def _header_lines(p: PMACParams, a: PMACAssumptions, motor: int) -> list[str]:
+def _header_lines(motors: Mapping[int, PMACParams], a: PMACAssumptions) -> list[str]:
+    """The provenance header; ``motor: 3`` for one motor, ``motors: 1, 2`` for several (with
+    each motor's sample time, which its Ixx60 sets, in motor order)."""
+    p = next(iter(motors.values()))
     chip = p.chip
+    many = len(motors) > 1
+    numbers = axes_text(motors)
     lines = [
-        f"servogym PMAC parameter set: I-variables of motor {motor}",
+        f"servogym PMAC parameter set: I-variables of motor{'s' if many else ''} {numbers}",
         f"chip_model: {chip.name}",
         f"chip_line: {chip.line}",
         f"spec_version: {SPEC_VERSION}",
-        f"motor: {motor}",
+        f"motor{'s' if many else ''}: {numbers}",
         f"servo_period_us: {p.servo_period_s * 1e6:.6f}",
-        f"sample_time_us: {p.sample_time_us:.6f}",
+        f"sample_time_us: {', '.join(f'{q.sample_time_us:.6f}' for q in motors.values())}",
         f"servogym_version: {__version__}",
     ]
     lines += assumption_lines(a)
@@ -145,13 +151,30 @@ def to_ivar(
         ParameterError: for an illegal set (naming parameter, value and range) or motor.
     """
     p = _SCHEMA.legal_params(params)
+    return _ivar_text({_check_motor(p.chip, motor): p}, assumptions)
+
+
+def _assignment(p: PMACParams, name: str, motor: int) -> str:
+    value = getattr(p, name)
+    text = coefficient_text(value) if name in COEFFICIENT_FIELDS else str(value)
+    return f"{ivar_name(name, motor)}={text} ; {name}"
+
+
+def _ivar_text(
+    motors: Mapping[int, PMACParams], assumptions: PMACAssumptions | Mapping[str, str] | None
+) -> str:
+    """The I-variable file of one or several motors: each motor's ``Ixx`` lines in motor
+    order (a blank line between), then the global I-variables once (every motor holds the
+    same values: :class:`servogym.chips.MultiAxisParams` checks it)."""
+    sets = {n: _SCHEMA.legal_params(p) for n, p in motors.items()}
     a = _SCHEMA.legal_assumptions(assumptions)
-    motor = _check_motor(p.chip, motor)
-    out = [f"; {line}" for line in _header_lines(p, a, motor)]
-    for name in FIELDS:
-        value = getattr(p, name)
-        text = coefficient_text(value) if name in COEFFICIENT_FIELDS else str(value)
-        out.append(f"{ivar_name(name, motor)}={text} ; {name}")
+    out = [f"; {line}" for line in _header_lines(sets, a)]
+    for i, (motor, p) in enumerate(sets.items()):
+        if i:
+            out.append("")
+        out += [_assignment(p, name, motor) for name in FIELDS if name not in GLOBAL_FIELDS]
+    first = next(iter(sets.items()))
+    out += [_assignment(first[1], name, first[0]) for name in GLOBAL_FIELDS]
     return seal("\n".join(out) + "\n", ";")
 
 
@@ -274,21 +297,7 @@ def from_ivar(
     text, _sealed = unseal(text, verify=False)
     header = read_header(text)
     chip = resolve_model(model, header, get_model, CHIP_MODELS, "I-variable file")
-
-    assignments: list[tuple[int, int | None, str, str]] = []
-    in_buffer = False
-    for n, raw in enumerate(text.splitlines(), start=1):
-        line = raw.split(";", 1)[0]
-        if in_buffer:
-            in_buffer = not _CLOSE.match(line)
-            continue
-        if _OPEN.match(line):
-            in_buffer = True
-            continue
-        for m in _ASSIGN.finditer(line):
-            first = int(m.group(1))
-            last = int(m.group(2)) if m.group(2) else None
-            assignments.append((first, last, m.group(3), f"line {n}"))
+    assignments = _assignments(text)
 
     if motor is None:
         if "motor" in header:
@@ -303,11 +312,58 @@ def from_ivar(
             if len(found) != 1:
                 listed = ", ".join(map(str, found)) or "none"
                 raise ParameterError(
-                    f"the file sets registers of motors {listed}; pass motor= to choose one."
+                    f"the file sets registers of motors {listed}; pass motor= to choose one "
+                    f"(or read them all with servogym.chips.import_axes)."
                 )
             motor = found[0]
     motor = _check_motor(chip, motor)
+    params = _motor_params(chip, motor, assignments)
+    unseal(original)
+    return params
 
+
+def _ivar_axes(text: str, model: str | PMACChipModel | None) -> dict[int, PMACParams]:
+    """Motor number -> set, of every motor the header names (``motors:`` or ``motor:``), or
+    without a header every motor whose registers the file sets."""
+    original = text
+    text, _sealed = unseal(text, verify=False)
+    header = read_header(text)
+    chip = resolve_model(model, header, get_model, CHIP_MODELS, "I-variable file")
+    assignments = _assignments(text)
+    named = header_axes(header, "motor")
+    found = _motors_in(assignments)
+    if not found:
+        raise ParameterError("the I-variable file sets the registers of no motor.")
+    if named is not None:
+        check_header_axes(named, found, "motor")
+    sets = {m: _motor_params(chip, _check_motor(chip, m), assignments) for m in found}
+    unseal(original)
+    return sets
+
+
+def _assignments(text: str) -> list[tuple[int, int | None, str, str]]:
+    """Every ``I<n>=<token>`` (or ``I<n>..<m>=``) outside program buffers, with its line."""
+    assignments: list[tuple[int, int | None, str, str]] = []
+    in_buffer = False
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split(";", 1)[0]
+        if in_buffer:
+            in_buffer = not _CLOSE.match(line)
+            continue
+        if _OPEN.match(line):
+            in_buffer = True
+            continue
+        for m in _ASSIGN.finditer(line):
+            first = int(m.group(1))
+            last = int(m.group(2)) if m.group(2) else None
+            assignments.append((first, last, m.group(3), f"line {n}"))
+    return assignments
+
+
+def _motor_params(
+    chip: PMACChipModel, motor: int, assignments: list[tuple[int, int | None, str, str]]
+) -> PMACParams:
+    """The set of one motor from a file's assignments (global I-variables included)."""
     ours = _ours(motor)
     space = parameter_space(chip)
     values: dict[str, int] = {}
@@ -337,9 +393,7 @@ def from_ivar(
             f"the I-variable file does not set every register of motor {motor}; an import "
             f"takes no defaults. Missing: {listed}."
         )
-    params = PMACParams(model=chip.name, **values)
-    unseal(original)
-    return params
+    return PMACParams(model=chip.name, **values)
 
 
 # --------------------------------------------------------------------------------------
@@ -365,6 +419,8 @@ FORMAT_TABLE = Formats(
     writers={"ivar": _write_ivar},
     readers={"ivar": lambda text, model, motor=None: from_ivar(text, model, motor)},
     index="motor",
+    axis_writers={"ivar": _ivar_text},
+    axis_readers={"ivar": _ivar_axes},
 )
 
 export, import_params = FORMAT_TABLE.functions(

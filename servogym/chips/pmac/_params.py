@@ -443,6 +443,7 @@ TABLE = RegisterTable(
             doc="I7000: MaxPhase clock = 117.9648 MHz / (2*I7000+3)",
             source="A",
             spelling=_ivar(7000),
+            controller_wide=True,
         ),
         Register(
             "phase_clock_divider",
@@ -455,6 +456,7 @@ TABLE = RegisterTable(
             doc="I7001: phase clock = MaxPhase clock / (I7001+1)",
             source="A",
             spelling=_ivar(7001),
+            controller_wide=True,
         ),
         Register(
             "servo_clock_divider",
@@ -467,6 +469,7 @@ TABLE = RegisterTable(
             doc="I7002: servo clock = phase clock / (I7002+1)",
             source="A",
             spelling=_ivar(7002),
+            controller_wide=True,
         ),
     ],
 )

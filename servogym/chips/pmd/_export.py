@@ -25,6 +25,7 @@ from typing import Any
 
 from servogym import __version__
 from servogym._files import seal, unseal
+from servogym.chips._axisfile import axes_text, check_header_axes, header_axes
 from servogym.chips._formats import Formats, check_index, resolve_model
 from servogym.chips._formats import read_header as read_header_lines
 from servogym.chips._paramfile import ExtraKey, FileSchema, assumption_lines
@@ -236,7 +237,8 @@ class _Collector:
 # --------------------------------------------------------------------------------------
 
 
-def _header_lines(p: PMDParams, a: PMDAssumptions, axis: int, title: str) -> list[str]:
+def _header_lines(p: PMDParams, a: PMDAssumptions, axes: Sequence[int], title: str) -> list[str]:
+    """The provenance header; ``axis: 2`` for one axis, ``axes: 1, 2`` for several."""
     chip = p.chip
     lines = [
         f"servogym PMD parameter set, {title}",
@@ -245,7 +247,7 @@ def _header_lines(p: PMDParams, a: PMDAssumptions, axis: int, title: str) -> lis
         f"host_interface: {chip.host_interface}",
         f"spec_version: {SPEC_VERSION}",
         f"sample_time_us: {p.sample_time_us}",
-        f"axis: {axis}",
+        f"axis: {axes[0]}" if len(axes) == 1 else f"axes: {axes_text(axes)}",
         f"servogym_version: {__version__}",
     ]
     lines += assumption_lines(a)
@@ -336,21 +338,41 @@ def to_cmotion(
         ParameterError: for an illegal set or axis.
     """
     p = _SCHEMA.legal_params(params)
+    return _cmotion_text({_check_axis(p.chip, axis): p}, assumptions)
+
+
+def _cmotion_text(
+    axes: Mapping[int, PMDParams], assumptions: PMDAssumptions | Mapping[str, str] | None
+) -> str:
+    """The C-Motion snippet of one or several axes: one handle ``hAxis<n>`` per axis, each
+    axis's calls then its ``PMDUpdate``, the blocks in axis order, a blank line between."""
+    sets = {n: _SCHEMA.legal_params(p) for n, p in axes.items()}
     a = _SCHEMA.legal_assumptions(assumptions)
-    axis = _check_axis(p.chip, axis)
-    handle = f"&hAxis{axis}"
-    head = _header_lines(p, a, axis, "C-Motion calls for one axis")
-    head += [
-        f"Needs an open PMDAxisHandle hAxis{axis} for PMDAxis{axis}",
-        "(C-Motion numbers axes from 0: PMDAxis1 = 0).",
-    ]
+    numbers = list(sets)
+    first = sets[numbers[0]]
+    if len(numbers) == 1:
+        title = "C-Motion calls for one axis"
+        needs = f"Needs an open PMDAxisHandle hAxis{numbers[0]} for PMDAxis{numbers[0]}"
+    else:
+        title = f"C-Motion calls for {len(numbers)} axes"
+        needs = (
+            f"Needs open PMDAxisHandles {', '.join(f'hAxis{n}' for n in numbers)} for "
+            f"{', '.join(f'PMDAxis{n}' for n in numbers)}"
+        )
+    head = _header_lines(first, a, numbers, title)
+    head += [needs, "(C-Motion numbers axes from 0: PMDAxis1 = 0)."]
     lines = ["/*", *(f" * {line}" for line in head), " */"]
-    for s in _steps(p):
-        if s.loop is not None:
-            lines.append(f"PMDSetPositionLoop({handle}, {_LOOP_BY_NUMBER[s.loop][0]}, {s.value});")
-        else:
-            lines.append(f"PMD{s.name}({handle}, {s.value});")
-    lines.append(f"PMDUpdate({handle});")
+    for i, (number, p) in enumerate(sets.items()):
+        handle = f"&hAxis{number}"
+        if i:
+            lines.append("")
+        for s in _steps(p):
+            if s.loop is not None:
+                loop = _LOOP_BY_NUMBER[s.loop][0]
+                lines.append(f"PMDSetPositionLoop({handle}, {loop}, {s.value});")
+            else:
+                lines.append(f"PMD{s.name}({handle}, {s.value});")
+        lines.append(f"PMDUpdate({handle});")
     return seal("\n".join(lines) + "\n", "//")
 
 
@@ -399,9 +421,21 @@ def from_cmotion(text: str, model: str | PMDChipModel | None = None) -> PMDParam
             take, a malformed argument, an illegal value (with its range), a second
             set of a register, or a register left unset.
     """
+    return next(iter(_read_cmotion(text, model, several=False)[1].values()))
+
+
+_HANDLE = re.compile(r"^&hAxis([0-9]+)$")
+
+
+def _read_cmotion(
+    text: str, model: str | PMDChipModel | None, *, several: bool
+) -> tuple[PMDChipModel, dict[str, PMDParams]]:
+    """The sets a C-Motion snippet loads, by axis handle (as written, blanks removed), in
+    file order. ``several=False`` refuses a second handle (:func:`from_cmotion`)."""
     original = text
     text, _sealed = unseal(text, verify=False)
-    chip = _resolve_model(model, read_header(text), "C-Motion snippet")
+    header = read_header(text)
+    chip = _resolve_model(model, header, "C-Motion snippet")
     code = _C_COMMENT.sub(_blank, text)
     for m in re.finditer(r"(?m)^[ \t]*#[ \t]*(\w*)[^\n]*", code):
         if m.group(1) != "include":
@@ -423,7 +457,7 @@ def from_cmotion(text: str, model: str | PMDChipModel | None = None) -> PMDParam
             return f"PMDSetPositionLoop(..., {_LOOP_BY_REGISTER[register][1]}, ...)"
         return next((c.call for c in commands.values() if c.register == register), "no call")
 
-    collect = _Collector(chip, describe)
+    collectors: dict[str, _Collector] = {}
     handle: tuple[str, str] | None = None
 
     def line_at(pos: int) -> int:
@@ -464,11 +498,21 @@ def from_cmotion(text: str, model: str | PMDChipModel | None = None) -> PMDParam
         this = re.sub(r"\s+", "", args[0])
         if handle is None:
             handle = (this, where)
-        elif this != handle[0]:
+        elif this != handle[0] and not several:
             raise ParameterError(
                 f"{where}: {name} addresses {this} but {handle[1]} addresses {handle[0]}; "
-                f"a snippet loads one axis."
+                f"a snippet loads one axis (read a file of several axes with "
+                f"servogym.chips.import_axes)."
             )
+        if this not in collectors:
+            if several and not _HANDLE.match(this):
+                raise ParameterError(
+                    f"{where}: {name} addresses {this}; in a file of several axes each "
+                    f"axis's handle must be &hAxis<n>, n its axis number (1 .. "
+                    f"{chip.n_axes} on the {chip.name})."
+                )
+            collectors[this] = _Collector(chip, describe)
+        collect = collectors[this]
         if name == "PMDUpdate":
             continue
         if name == "PMDSetPositionLoop":
@@ -503,9 +547,25 @@ def from_cmotion(text: str, model: str | PMDChipModel | None = None) -> PMDParam
         )
     if handle is None:
         raise ParameterError("the C-Motion snippet contains no calls.")
-    params = collect.result("C-Motion snippet")
+    what = "C-Motion snippet"
+    sets = {h: c.result(f"{what} ({h})" if several else what) for h, c in collectors.items()}
     unseal(original)
-    return params
+    return chip, sets
+
+
+def _cmotion_axes(text: str, model: str | PMDChipModel | None) -> dict[int, PMDParams]:
+    """Axis number -> set, of a C-Motion snippet of one or several axes (``hAxis<n>``)."""
+    chip, by_handle = _read_cmotion(text, model, several=True)
+    sets: dict[int, PMDParams] = {}
+    for handle, params in by_handle.items():
+        number = _check_axis(chip, int(_HANDLE.match(handle).group(1)), f"handle {handle}")
+        if number in sets:
+            raise ParameterError(
+                f"handle {handle} names axis {number}, which another handle loads already."
+            )
+        sets[number] = params
+    check_header_axes(header_axes(read_header(unseal(text, verify=False)[0])), sets)
+    return sets
 
 
 # --------------------------------------------------------------------------------------
@@ -616,11 +676,22 @@ def to_host_text(
         The text, newline-terminated.
     """
     p = _SCHEMA.legal_params(params)
+    return _host_text({_check_axis(p.chip, axis): p}, assumptions)
+
+
+def _host_text(
+    axes: Mapping[int, PMDParams], assumptions: PMDAssumptions | Mapping[str, str] | None
+) -> str:
+    """The host-command text of one or several axes: each axis's commands then its
+    ``Update``, the blocks in axis order, a blank line between."""
+    sets = {n: _SCHEMA.legal_params(p) for n, p in axes.items()}
     a = _SCHEMA.legal_assumptions(assumptions)
-    cmds = to_host_commands(p, axis)
-    head = _header_lines(p, a, cmds[0].axis, "host commands for one axis")
+    numbers = list(sets)
+    title = "host commands for " + ("one axis" if len(numbers) == 1 else f"{len(numbers)} axes")
+    head = _header_lines(sets[numbers[0]], a, numbers, title)
     head.append("Format: opcode name axis=N data=16-bit words (32-bit values high word first).")
-    return seal("".join(f"# {line}\n" for line in head) + host_commands_to_text(cmds), "#")
+    body = "\n".join(host_commands_to_text(to_host_commands(p, n)) for n, p in sets.items())
+    return seal("".join(f"# {line}\n" for line in head) + body, "#")
 
 
 _HOST_LINE = re.compile(
@@ -667,7 +738,9 @@ def host_text_to_commands(text: str) -> list[HostCommand]:
     return [cmd for _, cmd in _parse_host_text(text)]
 
 
-def _decode_commands(items: Sequence[tuple[str, HostCommand]], chip: PMDChipModel) -> PMDParams:
+def _decode_commands(
+    items: Sequence[tuple[str, HostCommand]], chip: PMDChipModel, what: str = "host-command list"
+) -> PMDParams:
     table = {c.name: c for c in _commands_for(chip)}
     names = [*table, _UPDATE]
     if chip.host_interface == "magellan":
@@ -693,7 +766,8 @@ def _decode_commands(items: Sequence[tuple[str, HostCommand]], chip: PMDChipMode
         elif cmd.axis != axis[0]:
             raise ParameterError(
                 f"{where}: {cmd.name} addresses axis={cmd.axis} but {axis[1]} addresses "
-                f"axis={axis[0]}; a command list loads one axis."
+                f"axis={axis[0]}; a command list loads one axis (read a file of several axes "
+                f"with servogym.chips.import_axes)."
             )
         if cmd.name == _UPDATE:
             opcode, n_words = _UPDATE_OPCODE, 0
@@ -727,7 +801,7 @@ def _decode_commands(items: Sequence[tuple[str, HostCommand]], chip: PMDChipMode
             collect.set(c.register, _decode(cmd.data, c.width), where)
     if axis is None:
         raise ParameterError("the host-command list contains no commands.")
-    return collect.result("host-command list")
+    return collect.result(what)
 
 
 def from_host_commands(cmds: Iterable[HostCommand], model: str | PMDChipModel) -> PMDParams:
@@ -779,6 +853,26 @@ def from_host_text(text: str, model: str | PMDChipModel | None = None) -> PMDPar
     return params
 
 
+def _host_axes(text: str, model: str | PMDChipModel | None) -> dict[int, PMDParams]:
+    """Axis number -> set, of a host-command text of one or several axes (commands grouped
+    by their ``axis=``, in the order the axes first appear)."""
+    body, _sealed = unseal(text, verify=False)
+    header = read_header(body)
+    chip = _resolve_model(model, header, "host-command text")
+    groups: dict[int, list[tuple[str, HostCommand]]] = {}
+    for where, cmd in _parse_host_text(body):
+        groups.setdefault(cmd.axis, []).append((where, cmd))
+    if not groups:
+        raise ParameterError("the host-command list contains no commands.")
+    sets = {}
+    for axis, items in groups.items():
+        _check_axis(chip, axis, items[0][0])
+        sets[axis] = _decode_commands(items, chip, f"host-command list (axis {axis})")
+    check_header_axes(header_axes(header), sets)
+    unseal(text)
+    return sets
+
+
 # --------------------------------------------------------------------------------------
 # Dispatch
 # --------------------------------------------------------------------------------------
@@ -791,6 +885,8 @@ FORMAT_TABLE = Formats(
              "host": lambda params, **kw: to_host_text(params, **kw)},
     readers={"cmotion": lambda text, model: from_cmotion(text, model),
              "host": lambda text, model: from_host_text(text, model)},
+    axis_writers={"cmotion": _cmotion_text, "host": _host_text},
+    axis_readers={"cmotion": _cmotion_axes, "host": _host_axes},
 )  # fmt: skip
 
 export, import_params = FORMAT_TABLE.functions(

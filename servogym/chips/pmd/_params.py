@@ -314,6 +314,7 @@ TABLE = RegisterTable(
             doc="Servo period for one enabled axis", source="A",
             spelling={"navigator": _nav(11, "SetSampleTime", 0x38, "u16"),
                       "magellan": Spelling("SetSampleTime", 0x3B, "u32")},
+            controller_wide=True,
         ),
         *_biquad_rows(1),
         *_biquad_rows(2),

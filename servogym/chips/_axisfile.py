@@ -1,0 +1,285 @@
+"""What every family's multi-axis files share: the axis list of a header, and the JSON layout of
+the parameter sets of several axes of one controller.
+
+The multi-axis JSON file (``format_version`` 1)::
+
+    {"format": "servogym-axes", "format_version": 1, "chip_family": "pmd",
+     "chip_model": "MC2300", "spec_version": "...", "assumptions": {...},
+     "axes": [{"axis": 1, "params": {...}}, {"axis": 2, "params": {...}}],
+     "created": "...", "servogym_version": "...", "metrics": {...}, "notes": {...},
+     "checksum": "sha256:..."}                  # metrics and notes optional
+
+``params`` of each entry is the ``params`` object of the family's single-axis file
+(:mod:`servogym.chips._paramfile`); a PMAC file names its entries by ``motor``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import re
+import warnings
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from servogym import __version__
+from servogym.chips._paramfile import (
+    FILE_FORMAT,
+    FILE_FORMAT_VERSION,
+    OPTIONAL_KEYS,
+    FileSchema,
+    ParamFile,
+    _expect,
+    _load,
+    created_text,
+    json_object,
+    verify_checksum,
+)
+from servogym.chips._space import ParameterError
+
+AXES_FORMAT = "servogym-axes"
+"""Value of the ``format`` key of a multi-axis JSON parameter file."""
+
+
+def plural(noun: str) -> str:
+    """``"axes"`` for ``"axis"``, ``"motors"`` for ``"motor"``."""
+    return "axes" if noun == "axis" else noun + "s"
+
+
+def axes_text(numbers: Iterable[int]) -> str:
+    """The axis list of a header: ``"1, 2"``."""
+    return ", ".join(str(n) for n in numbers)
+
+
+_NUMBER_LIST = re.compile(r"^\s*\d+(\s*,\s*\d+)*\s*$")
+
+
+def header_axes(header: Mapping[str, Any], noun: str = "axis") -> tuple[int, ...] | None:
+    """The axis numbers a file's header names (``axes: 1, 2`` or, one axis, ``axis: 2``).
+
+    Args:
+        header: The header's ``key: value`` entries.
+        noun: ``"axis"`` or ``"motor"`` (PMAC): the keys are ``motor`` and ``motors``.
+
+    Returns:
+        The numbers in file order, or None when the header names none.
+
+    Raises:
+        ParameterError: for an entry that is not a list of numbers, or names one twice.
+    """
+    for key in (plural(noun), noun):
+        text = header.get(key)
+        if text is None:
+            continue
+        if not _NUMBER_LIST.match(str(text)):
+            raise ParameterError(
+                f"the header's '{key}: {text}' must list {noun} numbers such as "
+                f"'{plural(noun)}: 1, 2'."
+            )
+        numbers = tuple(int(n) for n in str(text).split(","))
+        if len(set(numbers)) != len(numbers):
+            raise ParameterError(f"the header's '{key}: {text}' names an {noun} twice.")
+        return numbers
+    return None
+
+
+def check_header_axes(
+    named: tuple[int, ...] | None, found: Iterable[int], noun: str = "axis"
+) -> None:
+    """Refuse a file whose header names other axes than its commands set."""
+    found = tuple(sorted(found))
+    if named is not None and tuple(sorted(named)) != found:
+        raise ParameterError(
+            f"the header names {plural(noun)} {axes_text(sorted(named))} but the file sets the "
+            f"registers of {plural(noun)} {axes_text(found) or 'none'}; a multi-axis file sets "
+            f"every {noun} its header names, and no other."
+        )
+
+
+# --------------------------------------------------------------------------------------
+# JSON
+# --------------------------------------------------------------------------------------
+
+
+def _required_keys(noun: str) -> tuple[str, ...]:
+    return (
+        "format",
+        "format_version",
+        "chip_family",
+        "chip_model",
+        "spec_version",
+        "assumptions",
+        plural("axis"),
+        "created",
+        "servogym_version",
+    )
+
+
+def write_axes_json(
+    schema: FileSchema,
+    axes: Mapping[int, Any],
+    assumptions: Any = None,
+    *,
+    noun: str = "axis",
+    metrics: Mapping[str, Any] | None = None,
+    notes: Mapping[str, Any] | None = None,
+    created: str | _dt.datetime | None = None,
+) -> str:
+    """The multi-axis JSON file of the sets of several axes (validated each, in axis order).
+
+    Args:
+        schema: The family's JSON file schema.
+        axes: Axis (PMAC: motor) number -> parameter set, one chip model.
+        assumptions: The switches the sets were tuned under; default all defaults.
+        noun: ``"axis"`` or ``"motor"``: the key that numbers each entry.
+        metrics: Optional results to keep with the sets.
+        notes: Optional free-form notes.
+        created: Creation time; default now (UTC).
+    """
+    sets = {n: schema.legal_params(p) for n, p in sorted(axes.items())}
+    a = schema.legal_assumptions(assumptions)
+    model = next(iter(sets.values())).model
+    doc: dict[str, Any] = {
+        "format": AXES_FORMAT,
+        "format_version": FILE_FORMAT_VERSION,
+        "chip_family": schema.family,
+        "chip_model": model,
+        "spec_version": schema.spec_version,
+        "assumptions": a.to_dict(),
+        "axes": [{noun: n, "params": p.to_dict()} for n, p in sets.items()],
+        "created": created_text(created),
+        "servogym_version": __version__,
+    }
+    if metrics is not None:
+        doc["metrics"] = json_object(metrics, "metrics")
+    if notes is not None:
+        doc["notes"] = json_object(notes, "notes")
+    from servogym._files import json_checksum  # servogym._files imports chips
+
+    doc["checksum"] = json_checksum(doc)
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+
+def read_axes_json(
+    schema: FileSchema, text: str | bytes, model: Any = None, *, noun: str = "axis"
+) -> tuple[dict[int, Any], ParamFile[Any, Any]]:
+    """Read a multi-axis JSON file (or a single-axis one, as axis 1).
+
+    Args:
+        schema: The family's JSON file schema.
+        text: The file content.
+        model: Chip model; if given it must be the file's ``chip_model``.
+        noun: ``"axis"`` or ``"motor"``: the key that numbers each entry.
+
+    Returns:
+        Axis number -> parameter set, and a :class:`ParamFile` whose ``params`` is the
+        first axis's set, with the file's assumptions and provenance.
+
+    Raises:
+        ParameterError: for anything :meth:`FileSchema.read` refuses, an entry without its
+            number or with another key, a number given twice, or a model that disagrees.
+    """
+    doc = _load(text)
+    if doc.get("format") == FILE_FORMAT:  # a single-axis file: axis 1
+        loaded = schema.read(text)
+        sets = {1: loaded.params}
+    else:
+        loaded, sets = _read_axes_doc(schema, doc, noun)
+    chip_model = loaded.params.model
+    if model is not None and schema.get_model(model).name != chip_model:
+        raise ParameterError(
+            f"model={schema.get_model(model).name!r} disagrees with the file's chip_model "
+            f"{chip_model!r}; pass model={chip_model!r} or model=None."
+        )
+    return sets, loaded
+
+
+def _read_axes_doc(
+    schema: FileSchema, doc: dict[str, Any], noun: str
+) -> tuple[ParamFile[Any, Any], dict[int, Any]]:
+    if doc.get("format") != AXES_FORMAT:
+        raise ParameterError(
+            f"format must be {AXES_FORMAT!r} (a servogym multi-axis parameter file) or "
+            f"{FILE_FORMAT!r} (one axis); got format={doc.get('format')!r}."
+        )
+    version = doc.get("format_version")
+    if type(version) is not int or version != FILE_FORMAT_VERSION:
+        raise ParameterError(
+            f"format_version must be {FILE_FORMAT_VERSION} (the only version servogym "
+            f"{__version__} reads); got format_version={version!r}."
+        )
+    if doc.get("chip_family") != schema.family:
+        raise ParameterError(
+            f"chip_family must be {schema.family!r} for a {schema.title} parameter file; got "
+            f"chip_family={doc.get('chip_family')!r}. Read other families with their own "
+            f"importer."
+        )
+    required = _required_keys(noun)
+    missing = [k for k in required if k not in doc]
+    if missing:
+        raise ParameterError(f"the parameter file misses the keys {', '.join(missing)}.")
+    allowed = required + OPTIONAL_KEYS
+    unknown = [k for k in doc if k not in allowed]
+    if unknown:
+        raise ParameterError(
+            f"the parameter file has unknown keys {', '.join(map(repr, unknown))}; "
+            f"{AXES_FORMAT} format_version {FILE_FORMAT_VERSION} allows {', '.join(allowed)}."
+        )
+    chip = schema.get_model(_expect(doc, "chip_model", str, f"a {schema.title} chip model name"))
+    entries = _expect(doc, "axes", list, f"a non-empty JSON list of {{{noun!r}: n, 'params'}}")
+    if not entries:
+        raise ParameterError(f"axes must list at least one {noun}; got axes=[].")
+    sets: dict[int, Any] = {}
+    for i, entry in enumerate(entries):
+        where = f"axes[{i}]"
+        if not isinstance(entry, dict) or set(entry) != {noun, "params"}:
+            got = sorted(entry) if isinstance(entry, dict) else type(entry).__name__
+            raise ParameterError(
+                f"{where} must be a JSON object with exactly the keys {noun!r} and 'params'; "
+                f"got {got}."
+            )
+        number = entry[noun]
+        if type(number) is not int:
+            raise ParameterError(f"{where}.{noun} must be an integer; got {noun}={number!r}.")
+        if number in sets:
+            raise ParameterError(
+                f"{where}: {noun} {number} is listed twice; a file gives each {noun} once."
+            )
+        values = entry["params"]
+        if not isinstance(values, dict):
+            raise ParameterError(f"{where}.params must be a JSON object; got {values!r}.")
+        if values.get("model") != chip.name:
+            raise ParameterError(
+                f"{where}.params.model must equal chip_model {chip.name!r}; got "
+                f"params.model={values.get('model')!r}."
+            )
+        absent = [r for r in schema.required(chip) if r not in values]
+        if absent:
+            raise ParameterError(
+                f"{where}.params must give every {schema.noun} of {chip.name} (an import takes "
+                f"no defaults); missing {', '.join(absent)}."
+            )
+        try:
+            sets[number] = schema.params_type.from_dict(values)
+        except ParameterError as exc:
+            raise ParameterError(f"{where} ({noun} {number}): {exc}") from None
+    asm = _expect(doc, "assumptions", dict, "a JSON object of assumption switches")
+    assumptions = schema.complete_assumptions(asm, "assumptions")
+    spec = _expect(doc, "spec_version", str, "a string")
+    created_text(_expect(doc, "created", str, "an ISO 8601 timestamp string"))
+    _expect(doc, "servogym_version", str, "a string")
+    for key in ("metrics", "notes"):
+        if key in doc:
+            _expect(doc, key, dict, "a JSON object")
+    verify_checksum(doc)
+    if spec != schema.spec_version:
+        warnings.warn(
+            f"the parameter file was written for spec_version {spec!r} but this servogym "
+            f"implements {schema.spec_version!r}: the {schema.noun}s load unchanged, but the "
+            f"emulated behaviour may differ from the one its metrics were measured with.",
+            UserWarning,
+            stacklevel=4,
+        )
+    provenance = {k: v for k, v in doc.items() if k not in ("axes", "assumptions", "checksum")}
+    first = sets[min(sets)]
+    return ParamFile(params=first, assumptions=assumptions, provenance=provenance), sets
