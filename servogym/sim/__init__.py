@@ -1,6 +1,16 @@
 """The closed-loop servo runner (a compiled hot loop around mj_step), metrics and the cost."""
 
 from servogym.sim._check import CaseResult, CheckLimits, CheckReport, check_params
+from servogym.sim._contour import (
+    CONTOUR_MODES,
+    CirclePath,
+    ContourError,
+    Kinematics,
+    LinePath,
+    contour,
+    contour_error,
+    coordinated_move,
+)
 from servogym.sim._machine import (
     SEQUENCING,
     MultiEpisodeResult,
@@ -11,6 +21,13 @@ from servogym.sim._machine import (
 )
 from servogym.sim._margins import Margins
 from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics
+from servogym.sim._multieval import (
+    ContourSpec,
+    CoordinatedSpec,
+    MultiCostWeights,
+    MultiEvaluation,
+    MultiEvaluator,
+)
 from servogym.sim._runner import (
     MAX_SUBSTEP_S,
     REFERENCE_SUBSTEPS,
@@ -33,6 +50,7 @@ from servogym.sim._scenario import (
 )
 
 __all__ = [
+    "CONTOUR_MODES",
     "COST_CAP",
     "DEFAULT_MOVES",
     "DIVERGENCE_PENALTY",
@@ -43,14 +61,23 @@ __all__ = [
     "CaseResult",
     "CheckLimits",
     "CheckReport",
+    "CirclePath",
+    "ContourError",
+    "ContourSpec",
+    "CoordinatedSpec",
     "CostWeights",
     "EpisodeMetrics",
     "EpisodeResult",
     "Evaluation",
     "Evaluator",
+    "Kinematics",
+    "LinePath",
     "Margins",
     "MoveSpec",
+    "MultiCostWeights",
     "MultiEpisodeResult",
+    "MultiEvaluation",
+    "MultiEvaluator",
     "MultiServoLoop",
     "Scenario",
     "ServoLoop",
@@ -58,6 +85,9 @@ __all__ = [
     "axis_latencies",
     "check_machine",
     "check_params",
+    "contour",
+    "contour_error",
+    "coordinated_move",
     "default_substeps",
     "machine_params",
     "move_cost",
