@@ -105,6 +105,12 @@ class MultiAxisParams(Mapping[int, Any]):
                 )
         chip = self._family.models[model]
         top = addressable(chip)
+        n, most = len(items), max_axes(chip)
+        if n > most:
+            raise ParameterError(
+                f"the {model} drives at most {most} {plural(self._noun)}; got {n} parameter "
+                f"sets (1 <= number of {plural(self._noun)} <= {most})."
+            )
         for number, _p in items:
             if isinstance(number, bool) or not isinstance(number, int | np.integer):
                 raise ParameterError(
@@ -116,12 +122,6 @@ class MultiAxisParams(Mapping[int, Any]):
                     f"{self._noun} must satisfy 1 <= {self._noun} <= {top} ({model} addresses "
                     f"{top} {plural(self._noun)}); got {self._noun}={int(number)}."
                 )
-        n, most = len(items), max_axes(chip)
-        if n > most:
-            raise ParameterError(
-                f"the {model} drives at most {most} {plural(self._noun)}; got {n} parameter "
-                f"sets (1 <= number of {plural(self._noun)} <= {most})."
-            )
         self._axes: dict[int, Any] = {int(k): v for k, v in sorted(items, key=lambda i: i[0])}
         self._check_shared()
 
