@@ -26,8 +26,11 @@ docs/simulation.md, "Margins").
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import functools
 import math
+import threading
 from typing import Any
 
 import mujoco
@@ -72,6 +75,74 @@ class LinearPlant:
         rhs = self.g_new[None, :] + self.g_old[None, :] / z[:, None]
         x = np.linalg.solve(lhs, rhs[..., None])[..., 0]
         return x @ self.c
+
+    @property
+    def _memo(self) -> dict[Any, Any]:
+        """What :func:`analyse_loop` computes once per linear plant (read-only arrays), kept
+        for the :data:`PLANT_MEMO_SIZE` plants used last (:func:`_plant_memo`)."""
+        return _plant_memo(self)
+
+    def _search_response(self, theta_lo: float) -> np.ndarray:
+        """``P`` on the crossover search's base grid (``_base_grid(theta_lo)``), from the
+        plant's polynomials as :func:`analyse_loop` evaluates it."""
+        memo, key = self._memo, ("search", theta_lo)
+        if key not in memo:
+            p = self._polynomial_response(np.exp(-1j * _base_grid(theta_lo)))
+            p.setflags(write=False)
+            memo[key] = p
+        return memo[key]
+
+    def _polynomial_response(self, x: np.ndarray) -> np.ndarray:
+        """``P`` at ``x = z^-1`` (a 1-d array) from :func:`plant_polynomials`: ``num(x) /
+        den(x)``, both by Horner's rule in one pass (the float operations of ``np.polyval``,
+        on a stack of the two coefficient rows, ``den`` led by zeros to ``num``'s length)."""
+        memo = self._memo
+        if "horner" not in memo:
+            num, den = plant_polynomials(self)
+            rows = np.zeros((2, max(num.size, den.size)))
+            rows[0, rows.shape[1] - num.size :] = num[::-1]
+            rows[1, rows.shape[1] - den.size :] = den[::-1]
+            memo["horner"] = [col[:, None] for col in rows.T]
+        y = np.zeros((2, x.size), dtype=complex)
+        for col in memo["horner"]:
+            y = y * x + col
+        return y[0] / y[1]
+
+    def _display_response(self) -> np.ndarray:
+        """``P`` on the display grid :func:`frequency_grid` of the plant's period."""
+        memo = self._memo
+        if "display" not in memo:
+            grid = _display_grid(self.dt)
+            p = self.response(np.exp(1j * (2 * np.pi * grid * self.dt)))
+            p.setflags(write=False)
+            memo["display"] = p
+        return memo["display"]
+
+
+PLANT_MEMO_SIZE = 128
+"""Linear plants whose gain-independent parts (polynomials, responses on the search's base
+grid and on the display grid: some 110 kB each) are kept, the last used first out. An
+evaluation with margins at every latency uses up to eight (four latencies, two holding
+points) per plant instance."""
+
+_plant_memos: collections.OrderedDict[int, tuple[LinearPlant, dict]] = collections.OrderedDict()
+_plant_memo_lock = threading.Lock()
+
+
+def _plant_memo(lin: LinearPlant) -> dict[Any, Any]:
+    """The memo of ``lin`` (a new one when it is not among the last :data:`PLANT_MEMO_SIZE`
+    plants used). Each entry holds its plant, so its ``id`` is not reused while it lives."""
+    key = id(lin)
+    with _plant_memo_lock:
+        hit = _plant_memos.get(key)
+        if hit is not None and hit[0] is lin:
+            _plant_memos.move_to_end(key)
+            return hit[1]
+        memo: dict[Any, Any] = {}
+        _plant_memos[key] = (lin, memo)
+        while len(_plant_memos) > PLANT_MEMO_SIZE:
+            _plant_memos.popitem(last=False)
+        return memo
 
 
 def continuous_model(
@@ -306,6 +377,14 @@ def frequency_grid(dt: float, n: int = N_FREQUENCIES) -> np.ndarray:
     return np.geomspace(LOWEST_FREQUENCY_FRACTION / dt, 0.999 * nyquist, n)
 
 
+@functools.lru_cache(maxsize=64)
+def _display_grid(dt: float) -> np.ndarray:
+    """:func:`frequency_grid` of ``dt`` (read-only, kept)."""
+    out = frequency_grid(dt)
+    out.setflags(write=False)
+    return out
+
+
 # --- closed-loop stability ---------------------------------------------------------------
 
 
@@ -317,7 +396,19 @@ def plant_polynomials(lin: LinearPlant) -> tuple[np.ndarray, np.ndarray]:
     (1 + s c (zI - Phi)^-1 b)`` with ``s`` scaling ``b c`` to the size of ``Phi``, so the
     difference of the two characteristic polynomials carries no cancellation. Every state
     counts, an unobservable or uncontrollable one too (its pole stays a pole of the loop).
+    Computed once per plant and kept on it (read-only arrays).
     """
+    memo = lin._memo if isinstance(lin, LinearPlant) else {}
+    if "polynomials" not in memo:
+        num, den = _plant_polynomials(lin)
+        num.setflags(write=False)
+        den.setflags(write=False)
+        memo["polynomials"] = (num, den)
+    return memo["polynomials"]
+
+
+def _plant_polynomials(lin: LinearPlant) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`plant_polynomials`, computed."""
     phi = np.asarray(lin.phi, dtype=float)
     n = phi.shape[0]
     den = np.real(np.poly(phi))
@@ -427,7 +518,8 @@ def closed_loop_stability(
     order = lin.phi.shape[0] + 1 + max(len(num), len(den)) - 1
     limit = 1.0 - STABILITY_EPS
     if order <= EIGEN_MAX_ORDER:
-        poles = scipy.linalg.eigvals(closed_loop_matrix(filter_polys, lin))
+        matrix = closed_loop_matrix(filter_polys, lin)
+        poles = scipy.linalg.eigvals(matrix, overwrite_a=True, check_finite=False)
         radius = float(np.max(np.abs(poles)))
         n_unstable = int(np.sum(np.abs(poles) >= limit))
         return Stability(n_unstable == 0, n_unstable, radius, order, "eigenvalues")
@@ -446,45 +538,198 @@ def _wrap(angle: np.ndarray | float) -> Any:
     return np.pi - np.mod(np.pi - np.asarray(angle, dtype=float), 2 * np.pi)
 
 
-def _refined_grid(loop_fn: Any, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+@functools.lru_cache(maxsize=8)
+def _base_grid(theta_lo: float) -> np.ndarray:
+    """The crossover search's base grid (sorted, distinct, read-only): :data:`GRID_LOG_POINTS`
+    logarithmic and 2048 linear points from ``theta_lo`` to ``pi``."""
+    base = np.concatenate(
+        [np.geomspace(theta_lo, np.pi, GRID_LOG_POINTS), np.linspace(theta_lo, np.pi, 2048)]
+    )
+    out = np.unique(base)
+    out.setflags(write=False)
+    return out
+
+
+def _log_abs(v: np.ndarray) -> np.ndarray:
+    """``ln |v|`` (``-inf`` at 0, no warning)."""
+    with np.errstate(divide="ignore"):
+        return np.log(np.abs(v))
+
+
+def _bad_intervals(
+    t0: np.ndarray, t1: np.ndarray, v0: np.ndarray, v1: np.ndarray, m0: np.ndarray, m1: np.ndarray
+) -> np.ndarray:
+    """Which intervals ``[t0, t1]`` :func:`_refined_grid` splits (``L`` there ``v0``, ``v1``;
+    ``ln |L|`` there ``m0``, ``m1``)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dmag = np.abs(m1 - m0)
+        dphase = np.abs(np.angle(v1 / v0))
+    wide = (t1 - t0) > 1e-10 * t1
+    return ((dmag > REFINE_LOG_MAGNITUDE) | (dphase > REFINE_PHASE_RAD) | ~np.isfinite(dmag)) & wide
+
+
+def _refined_grid(
+    loop_fn: Any, theta: np.ndarray, vals: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """``(theta, L)``: ``theta`` with every interval split until ``ln |L|`` and the phase
     change by less than :data:`REFINE_LOG_MAGNITUDE` and :data:`REFINE_PHASE_RAD` across it
-    (or the interval is below 1e-10 of its frequency, or :data:`MAX_GRID_POINTS` is met)."""
-    theta = np.unique(theta)
-    vals = loop_fn(theta)
+    (or the interval is below 1e-10 of its frequency, or :data:`MAX_GRID_POINTS` is met).
+    ``vals``: ``loop_fn(theta)`` when already known (``theta`` then sorted and distinct)."""
+    return _refine(loop_fn, theta, vals)[:2]
+
+
+def _refine(
+    loop_fn: Any, theta: np.ndarray, vals: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_refined_grid` and ``ln |L|`` on the grid.
+
+    Each pass splits every interval found too wide into four and then examines only the new
+    intervals (an interval once accepted stays so: its end values do not change), so the
+    grid is the one that re-examining the whole grid every pass gives, in a fraction of the
+    work."""
+    if vals is None:
+        theta = np.unique(theta)
+        vals = loop_fn(theta)
+    logs = _log_abs(vals)
+    pieces = [(theta, vals, logs)]
+    size = theta.size
+    t0, t1, v0, v1, m0, m1 = theta[:-1], theta[1:], vals[:-1], vals[1:], logs[:-1], logs[1:]
+    frac = np.array([0.25, 0.5, 0.75])
     for _ in range(60):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            dmag = np.abs(np.diff(np.log(np.abs(vals))))
-            dphase = np.abs(np.angle(vals[1:] / vals[:-1]))
-        wide = np.diff(theta) > 1e-10 * theta[1:]
-        bad = np.flatnonzero(
-            ((dmag > REFINE_LOG_MAGNITUDE) | (dphase > REFINE_PHASE_RAD) | ~np.isfinite(dmag))
-            & wide
-        )
-        if not bad.size or theta.size + 3 * bad.size > MAX_GRID_POINTS:
+        bad = np.flatnonzero(_bad_intervals(t0, t1, v0, v1, m0, m1))
+        if not bad.size or size + 3 * bad.size > MAX_GRID_POINTS:
             break
-        frac = np.array([0.25, 0.5, 0.75])
-        new_t = (theta[bad, None] + (theta[bad + 1] - theta[bad])[:, None] * frac).ravel()
-        theta = np.concatenate([theta, new_t])
-        vals = np.concatenate([vals, loop_fn(new_t)])
-        order = np.argsort(theta, kind="stable")
-        theta, vals = theta[order], vals[order]
-    return theta, vals
+        a, b = t0[bad], t1[bad]
+        new_t = (a[:, None] + (b - a)[:, None] * frac).ravel()
+        new_v = loop_fn(new_t)
+        new_m = _log_abs(new_v)
+        pieces.append((new_t, new_v, new_m))
+        size += new_t.size
+        # the four new intervals of each split one: ends (a, t1, t2, t3, b)
+        ts = np.column_stack([a, new_t.reshape(-1, 3), b])
+        vs = np.column_stack([v0[bad], new_v.reshape(-1, 3), v1[bad]])
+        ms = np.column_stack([m0[bad], new_m.reshape(-1, 3), m1[bad]])
+        t0, t1 = ts[:, :-1].ravel(), ts[:, 1:].ravel()
+        v0, v1 = vs[:, :-1].ravel(), vs[:, 1:].ravel()
+        m0, m1 = ms[:, :-1].ravel(), ms[:, 1:].ravel()
+    if len(pieces) == 1:
+        return theta, vals, logs
+    theta, vals, logs = (np.concatenate(p) for p in zip(*pieces, strict=True))
+    order = np.argsort(theta, kind="stable")
+    return theta[order], vals[order], logs[order]
 
 
-def _roots(fn: Any, theta: np.ndarray, values: np.ndarray) -> list[tuple[float, int]]:
-    """``(root, direction)`` of the real function ``fn`` at every sign change of ``values``
-    (``fn`` on ``theta``) by Brent's method; direction +1 for a rise, -1 for a fall."""
-    out = []
+ROOT_XTOL = 1e-14
+"""Crossovers and the bandwidth are located by Brent's method to ``ROOT_XTOL`` of the upper
+end of their bracket plus ``ROOT_RTOL`` of their frequency."""
+
+ROOT_RTOL = 4 * np.finfo(float).eps
+"""Relative tolerance of the root-finder (``scipy.optimize.brentq``'s smallest)."""
+
+ROOT_MAXITER = 100
+"""Steps of Brent's method before it gives up (``scipy.optimize.brentq``'s default)."""
+
+
+class _Brent:
+    """One root of Brent's method, advanced one function value at a time.
+
+    The steps are those of ``scipy.optimize.brentq`` (Brent 1973, ch. 4: inverse quadratic
+    or linear interpolation, bisection when the step is not short enough), value for value,
+    so that many roots can be found in lockstep, with one vectorized evaluation of the
+    function per step for all of them, and each lands on the float ``brentq`` returns.
+
+    Args:
+        xa, xb: The bracket's ends.
+        fa, fb: The function there (opposite signs, or one of them 0).
+        xtol, rtol: Converged when half the bracket is below ``(xtol + rtol |x|) / 2``.
+
+    Attributes:
+        x: The point whose value :meth:`tell` expects next (``root`` is ``None``).
+        root: The root once converged, else ``None``.
+    """
+
+    __slots__ = ("fblk", "fcur", "fpre", "iterations", "root", "rtol", "scur", "spre",
+                 "x", "xblk", "xpre", "xtol")  # fmt: skip
+
+    def __init__(self, xa: float, xb: float, fa: float, fb: float, xtol: float, rtol: float):
+        self.xpre, self.x, self.fpre, self.fcur = xa, xb, fa, fb
+        self.xblk = self.fblk = self.spre = self.scur = 0.0
+        self.xtol, self.rtol = xtol, rtol
+        self.iterations = 0
+        self.root: float | None = None
+        if fa * fb > 0:
+            raise ValueError(f"f(a) and f(b) must have different signs; got {fa=}, {fb=}")
+        if fa == 0:
+            self.root = xa
+        elif fb == 0:
+            self.root = xb
+        else:
+            self._step()
+
+    def tell(self, f: float) -> None:
+        """The function's value at :attr:`x`; then the next point, or the root."""
+        self.fcur = f
+        self._step()
+
+    def _step(self) -> None:
+        if self.iterations == ROOT_MAXITER:
+            raise RuntimeError(f"Brent's method did not converge in {ROOT_MAXITER} steps")
+        self.iterations += 1
+        xpre, xcur, fpre, fcur = self.xpre, self.x, self.fpre, self.fcur
+        xblk, fblk, spre, scur = self.xblk, self.fblk, self.spre, self.scur
+        if fpre * fcur < 0:  # the bracket is [xpre, xcur]
+            xblk, fblk = xpre, fpre
+            spre = scur = xcur - xpre
+        if abs(fblk) < abs(fcur):  # xcur the end with the smaller value
+            xpre, xcur, xblk = xcur, xblk, xcur
+            fpre, fcur, fblk = fcur, fblk, fcur
+        delta = (self.xtol + self.rtol * abs(xcur)) / 2
+        sbis = (xblk - xcur) / 2
+        if fcur == 0 or abs(sbis) < delta:
+            self.root = xcur
+            return
+        if abs(spre) > delta and abs(fcur) < abs(fpre):
+            if xpre == xblk:  # secant
+                stry = -fcur * (xcur - xpre) / (fcur - fpre)
+            else:  # inverse quadratic interpolation
+                dpre = (fpre - fcur) / (xpre - xcur)
+                dblk = (fblk - fcur) / (xblk - xcur)
+                stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre))
+            bound = 3 * abs(sbis) - delta
+            if 2 * abs(stry) < (abs(spre) if abs(spre) < bound else bound):
+                spre, scur = scur, stry
+            else:
+                spre = scur = sbis
+        else:
+            spre = scur = sbis
+        xpre, fpre = xcur, fcur
+        if abs(scur) > delta:
+            xcur += scur
+        else:
+            xcur += delta if sbis > 0 else -delta
+        self.xpre, self.x, self.fpre = xpre, xcur, fpre
+        self.xblk, self.fblk, self.spre, self.scur = xblk, fblk, spre, scur
+
+
+def _solve_all(solvers: list[_Brent], values: Any) -> None:
+    """Run every solver to its root: ``values(points, pending)`` gives the function of each
+    pending solver at its point (one vectorized evaluation per step for all)."""
+    pending = [s for s in solvers if s.root is None]
+    while pending:
+        fs = values(np.array([s.x for s in pending]), pending)
+        for s, f in zip(pending, fs, strict=True):
+            s.tell(f)
+        pending = [s for s in pending if s.root is None]
+
+
+def _sign_changes(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(k, on)``: intervals ``[k, k + 1]`` whose ends have opposite signs, and grid points
+    ``on`` that are exactly zero between two values of opposite signs."""
     sign = np.sign(values)
-    for k in np.flatnonzero(sign[:-1] * sign[1:] < 0):
-        a, b = float(theta[k]), float(theta[k + 1])
-        root = scipy.optimize.brentq(fn, a, b, xtol=1e-14 * b, rtol=4 * np.finfo(float).eps)
-        out.append((root, 1 if values[k + 1] > values[k] else -1))
-    for k in np.flatnonzero(values[1:-1] == 0) + 1:  # exactly on a grid point
-        if sign[k - 1] * sign[k + 1] < 0:
-            out.append((float(theta[k]), 1 if values[k + 1] > values[k - 1] else -1))
-    return sorted(out)
+    k = np.flatnonzero(sign[:-1] * sign[1:] < 0)
+    on = np.flatnonzero(values[1:-1] == 0) + 1
+    on = on[sign[on - 1] * sign[on + 1] < 0]
+    return k, on
 
 
 def frequency_margins(
@@ -494,34 +739,103 @@ def frequency_margins(
 
     Args:
         loop_fn: ``theta -> L(exp(j theta))`` for a float array ``theta`` in (0, pi]
-            (``theta = w T``).
+            (``theta = w T``), elementwise (each value depends on its own ``theta`` only).
         dt: Sample period ``T`` (s).
         stability: The closed loop's stability (:func:`closed_loop_stability`).
         theta_lo: Lowest ``theta`` searched (default ``2 pi`` :data:`ANALYSIS_LOWEST_FRACTION`).
     """
     lo = 2 * np.pi * ANALYSIS_LOWEST_FRACTION if theta_lo is None else float(theta_lo)
-    base = np.concatenate([np.geomspace(lo, np.pi, GRID_LOG_POINTS), np.linspace(lo, np.pi, 2048)])
-    theta, vals = _refined_grid(loop_fn, base)
+    base = _base_grid(lo)
+    return _grid_margins(loop_fn, dt, stability, base, loop_fn(base))
 
-    def scalar(t: float) -> complex:
-        return complex(loop_fn(np.array([t]))[0])
 
+def _grid_margins(
+    loop_fn: Any, dt: float, stability: Stability, base: np.ndarray, base_vals: np.ndarray
+) -> Margins:
+    """:func:`frequency_margins` from the base grid and ``L`` on it.
+
+    The grid is refined (:func:`_refined_grid`); every sign change of ``ln |L|`` (a gain
+    crossover), of ``Im L / |L|`` below Nyquist (a crossing of the real axis) and the first
+    drop of ``|L / (1 + L)|`` below ``1/sqrt(2)`` of its low-frequency value (the bandwidth)
+    is bracketed by two grid points, and all are located together by Brent's method
+    (:class:`_Brent`, one evaluation of ``loop_fn`` per step for all of them)."""
+    theta, vals, logmag = _refine(loop_fn, base, base_vals)
     to_hz = 1.0 / (2 * np.pi * dt)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        unit = vals / np.abs(vals)
+        closed = np.abs(vals / (1 + vals))
+    inner = theta < np.pi
+    n_inner = int(np.count_nonzero(inner))
+    sin_inner = unit.imag[:n_inner]  # theta is ascending: the points below pi come first
+    level = closed[0] / math.sqrt(2)
+    below = np.flatnonzero(closed < level)
+
+    # Every root, located by Brent's method with the function brentq was given (Python
+    # floats of L(theta), one theta at a time) and all of them in lockstep.
+    def log_mag(v: complex) -> float:
+        m = abs(v)
+        return math.log(m) if m > 0 else -math.inf
+
+    def sin_phase(v: complex) -> float:
+        # L = 0 exactly (a zero of L on the unit circle, such as a notch's or a long PMD
+        # derivative's, found by the root-finder): a root where Re L < 0 fails, no crossing.
+        m = abs(v)
+        return v.imag / m if m > 0 else 0.0
+
+    def closed_drop(v: complex) -> float:
+        return abs(v / (1 + v)) - level if v != -1 else math.inf
+
+    eps4 = ROOT_RTOL
+    # (kind, upper grid index of the bracket, solver); kind 0 gain, 1 phase, 2 bandwidth
+    jobs: list[tuple[int, int, _Brent]] = []
+    k_mag, on_mag = _sign_changes(logmag)
+    for k in k_mag:
+        a, b = float(theta[k]), float(theta[k + 1])
+        fa, fb = log_mag(complex(vals[k])), log_mag(complex(vals[k + 1]))
+        if fa * fb <= 0:
+            jobs.append((0, k + 1, _Brent(a, b, fa, fb, ROOT_XTOL * b, eps4)))
+    k_ph, on_ph = _sign_changes(sin_inner)
+    for k in k_ph:
+        a, b = float(theta[k]), float(theta[k + 1])
+        fa, fb = sin_phase(complex(vals[k])), sin_phase(complex(vals[k + 1]))
+        if fa * fb <= 0:
+            jobs.append((1, k + 1, _Brent(a, b, fa, fb, ROOT_XTOL * b, eps4)))
+    if below.size and below[0] > 0:
+        k = int(below[0])
+        fa = closed_drop(complex(vals[k - 1]))
+        fb = closed_drop(complex(vals[k]))
+        if fa * fb <= 0:
+            solver = _Brent(theta[k - 1], theta[k], fa, fb, ROOT_XTOL * theta[k], eps4)
+            jobs.append((2, k, solver))
+    functions = {0: log_mag, 1: sin_phase, 2: closed_drop}
+    kind_of = {id(solver): kind for kind, _, solver in jobs}
+
+    def values(points: np.ndarray, pending: list[_Brent]) -> list[float]:
+        at = loop_fn(points)
+        return [functions[kind_of[id(s)]](complex(v)) for s, v in zip(pending, at, strict=True)]
+
+    _solve_all([solver for _, _, solver in jobs], values)
+    roots = np.array([float(solver.root) for _, _, solver in jobs])
+    at_roots = loop_fn(roots) if roots.size else np.zeros(0, dtype=complex)
+
+    def located(kind: int, values: np.ndarray, on: np.ndarray) -> list[tuple[float, complex, int]]:
+        """``(theta, L, direction)`` of each root of one kind, ascending; direction +1 where
+        ``values`` (the function on the grid) rises."""
+        out = []
+        for i, (kind_i, k, _) in enumerate(jobs):
+            if kind_i == kind:  # the bracket [k - 1, k]
+                rise = 1 if values[k] > values[k - 1] else -1
+                out.append((float(roots[i]), complex(at_roots[i]), rise))
+        for k in on:  # exactly on a grid point
+            rise = 1 if values[k + 1] > values[k - 1] else -1
+            out.append((float(theta[k]), complex(vals[k]), rise))
+        return sorted(out, key=lambda r: r[0])
+
     # gain crossovers: ln |L| = 0
-    with np.errstate(divide="ignore"):
-        logmag = np.log(np.abs(vals))
     crossovers = []
     phis = []
-
-    def log_mag(t: float) -> float:
-        return math.log(abs(scalar(t)))
-
-    def sin_phase(t: float) -> float:
-        v = scalar(t)
-        return v.imag / abs(v)
-
-    for t, direction in _roots(log_mag, theta, logmag):
-        phi = float(_wrap(np.angle(scalar(t)) + np.pi))
+    for t, v, direction in located(0, logmag, on_mag):
+        phi = float(_wrap(np.angle(v) + np.pi))
         signed = -direction * phi  # falling |L| (direction -1): the classical 180 + phase
         pm = math.degrees(abs(phi)) * (1.0 if signed >= 0 else -1.0)
         if direction < 0:
@@ -531,17 +845,15 @@ def frequency_margins(
         crossovers.append((t * to_hz, pm, delay))
         phis.append((t, phi, direction))
     # phase crossovers: Im L = 0 with Re L < 0 (the Nyquist point apart)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        unit = vals / np.abs(vals)
-    inner = theta < np.pi
-    phase_x = []
-    for t, direction in _roots(sin_phase, theta[inner], unit.imag[inner]):
-        v = scalar(t)
-        if v.real < 0:
-            phase_x.append((t, abs(v), 2 * direction))
-    v_pi = scalar(np.pi)
+    phase_x = [
+        (t, abs(v), 2 * direction) for t, v, direction in located(1, sin_inner, on_ph) if v.real < 0
+    ]
+    if theta[-1] == np.pi:
+        v_pi = complex(vals[-1])
+    else:
+        v_pi = complex(loop_fn(np.array([np.pi]))[0])
     if v_pi.real < 0 and abs(v_pi.imag) <= 1e-9 * abs(v_pi):
-        before = unit.imag[inner][-1] if inner.any() else 0.0
+        before = sin_inner[-1] if n_inner else 0.0
         phase_x.append((np.pi, abs(v_pi), 1 if before < 0 else -1))
     phase_crossovers = tuple((t * to_hz, -20 * math.log10(r)) for t, r, _ in phase_x)
 
@@ -586,7 +898,7 @@ def frequency_margins(
         pm, f_pm = -best[0], best[1]
         delay = min([c[2] for c in crossovers if c[2] < 0], default=0.0)
 
-    bandwidth = _bandwidth(scalar, theta, vals) * to_hz
+    bandwidth = next((s.root for kind, _, s in jobs if kind == 2), math.nan) * to_hz
     return Margins(
         gain_margin_db=float(gm),
         phase_margin_deg=float(pm),
@@ -601,26 +913,39 @@ def frequency_margins(
     )
 
 
-def _bandwidth(scalar: Any, theta: np.ndarray, vals: np.ndarray) -> float:
-    """The lowest ``theta`` where ``|L / (1 + L)|`` is ``1/sqrt(2)`` of its value at the
-    grid's lowest point, root-found (``nan`` when it never drops that far)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        closed = np.abs(vals / (1 + vals))
-    level = closed[0] / math.sqrt(2)
-    below = np.flatnonzero(closed < level)
-    if not below.size or below[0] == 0:
-        return math.nan
-    k = below[0]
+_FILTER_CACHE_SIZE = 16
+"""Parameter sets whose filter response on the base grid :func:`analyse_loop` keeps."""
 
-    def fn(t: float) -> float:
-        v = scalar(t)
-        return abs(v / (1 + v)) - level
 
-    return float(scipy.optimize.brentq(fn, theta[k - 1], theta[k], xtol=1e-14 * theta[k]))
+@functools.lru_cache(maxsize=_FILTER_CACHE_SIZE)
+def _filter_on_base(chip: Any, params: Any, assumptions: Any, theta_lo: float) -> np.ndarray:
+    """``C`` on the base grid (read-only), as ``search_fn`` of :func:`analyse_loop` takes it.
+
+    Cached: an evaluation analyses one set at every loop-latency choice and holding point,
+    and ``C`` does not depend on the loop latency (``ChipFamily.filter_response``), so
+    ``assumptions`` comes here with ``loop_latency`` at one fixed choice."""
+    x = np.exp(-1j * _base_grid(theta_lo))
+    out = chip.filter_response(params, assumptions, 1 / x)
+    out.setflags(write=False)
+    return out
+
+
+def _latency_free(chip: Any, assumptions: Any) -> Any:
+    """``assumptions`` (``None``: the defaults) with ``loop_latency`` at its first choice:
+    the same filter response (:func:`_filter_on_base`)."""
+    asm = assumptions if assumptions is not None else chip.default_assumptions()
+    choices = getattr(type(asm), "CHOICES", {}).get("loop_latency")
+    if choices and getattr(asm, "loop_latency", None) != choices[0]:
+        asm = dataclasses.replace(asm, loop_latency=choices[0])
+    return asm
 
 
 def analyse_loop(chip: Any, params: Any, assumptions: Any, lin: LinearPlant) -> LoopAnalysis:
     """Stability, every crossover and the margins of ``params`` closing the loop on ``lin``.
+
+    What does not depend on the gains is computed once per linear plant and kept on it
+    (its polynomials, its response on the search's base grid and on the display grid), and
+    the filter's response on the base grid once per set (:func:`_filter_on_base`).
 
     Args:
         chip: The chip family (``ChipFamily``).
@@ -633,27 +958,51 @@ def analyse_loop(chip: Any, params: Any, assumptions: Any, lin: LinearPlant) -> 
     stability = closed_loop_stability(polys, lin)
     dt = lin.dt
 
-    num_p, den_p = plant_polynomials(lin)
-    num_p, den_p = num_p[::-1], den_p[::-1]  # descending, for np.polyval
+    response = getattr(chip, "response_function", None)
+    if response is not None:  # the family's own function: ChipFamily.filter_response's values
+        asm = chip._assumptions(assumptions)
+
+        def filter_at(z: np.ndarray) -> np.ndarray:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out = np.asarray(response(params, asm, z), dtype=complex)
+            return out if out.shape == z.shape else np.broadcast_to(out, z.shape).copy()
+
+    else:
+
+        def filter_at(z: np.ndarray) -> np.ndarray:
+            return chip.filter_response(params, assumptions, z)
 
     def search_fn(theta: np.ndarray) -> np.ndarray:
         # The plant as its polynomials (cheap; accurate to 1e-8 relative down to the
         # search's lowest frequency, where (1 - z^-1)^2 is 4e-11).
         x = np.exp(-1j * np.asarray(theta, dtype=float))
-        p = np.polyval(num_p, x) / np.polyval(den_p, x)
-        return chip.filter_response(params, assumptions, 1 / x) * p
+        return filter_at(1 / x) * lin._polynomial_response(x)
 
-    def loop_fn(theta: np.ndarray) -> np.ndarray:
-        z = np.exp(1j * np.asarray(theta, dtype=float))
-        return chip.filter_response(params, assumptions, z) * lin.response(z)
+    lo = 2 * np.pi * ANALYSIS_LOWEST_FRACTION
+    base = _base_grid(lo)
+    try:
+        c_base = _filter_on_base(chip, params, _latency_free(chip, assumptions), lo)
+    except TypeError:  # an unhashable parameter set: not cached
+        c_base = chip.filter_response(params, assumptions, 1 / np.exp(-1j * base))
+    m = _grid_margins(search_fn, dt, stability, base, c_base * lin._search_response(lo))
 
-    m = frequency_margins(search_fn, dt, stability)
     extra = [hz for hz, _, _ in m.crossovers] + [hz for hz, _ in m.phase_crossovers]
     if math.isfinite(m.bandwidth_hz):
         extra.append(m.bandwidth_hz)
-    freqs = np.unique(np.concatenate([frequency_grid(dt), np.asarray(extra, dtype=float)]))
-    freqs = freqs[(freqs > 0) & (freqs < 0.5 / dt)]
-    return LoopAnalysis(freqs, loop_fn(2 * np.pi * freqs * dt), m, stability)
+    # the display grid with every crossover and the bandwidth inserted in order (the plant's
+    # response on the grid is kept on it)
+    grid = _display_grid(dt)
+    extra = np.unique(np.asarray(extra, dtype=float))
+    extra = extra[(extra > 0) & (extra < 0.5 / dt)]
+    pos = np.searchsorted(grid, extra)
+    fresh = (pos == grid.size) | (grid[np.minimum(pos, grid.size - 1)] != extra)
+    extra, pos = extra[fresh], pos[fresh]
+    freqs = np.insert(grid, pos, extra)
+    plant = lin._display_response()
+    if extra.size:
+        plant = np.insert(plant, pos, lin.response(np.exp(1j * (2 * np.pi * extra * dt))))
+    loop = filter_at(np.exp(1j * (2 * np.pi * freqs * dt))) * plant
+    return LoopAnalysis(freqs, loop, m, stability)
 
 
 def continuous_phase(loop: np.ndarray) -> np.ndarray:
