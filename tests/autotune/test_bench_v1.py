@@ -248,3 +248,18 @@ def test_benchmark_worker_processes_start_with_one_blas_thread(monkeypatch):
         omp = pool.submit(os.getenv, "OMP_NUM_THREADS").result()
     assert seen == ONE_THREAD_ENV["OPENBLAS_NUM_THREADS"] == "1" and omp == "3"
     assert "OPENBLAS_NUM_THREADS" not in os.environ and os.environ["OMP_NUM_THREADS"] == "3"
+
+
+@pytest.mark.parametrize("tuner", ["safe", "tpe", "cmaes", "random", "sobol"])
+def test_an_anytime_tuners_smaller_budget_is_the_prefix_of_its_larger_run(tuner):
+    # The report takes budget b of an anytime tuner from the first b trials of its largest
+    # run: that holds only if trial n never depends on the budget. (GP: the same sampler
+    # code path as TPE's ask; too slow to run twice here.)
+    from servogym.autotune.bench._runner import ANYTIME_TUNERS, Job, compute_job
+
+    assert tuner in ANYTIME_TUNERS
+    inst_id = "servobench-v1/6250/rotary/light/fast"
+    short = compute_job(Job(tuner, inst_id, 1, 6))
+    long = compute_job(Job(tuner, inst_id, 1, 14))
+    assert len(short["cost"]) == 6 and len(long["cost"]) == 14
+    assert long["cost"][:6] == short["cost"] and long["flags"][:6] == short["flags"]

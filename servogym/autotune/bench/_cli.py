@@ -12,7 +12,7 @@ from typing import Annotated
 
 import typer
 
-DEFAULT_TUNERS = "tpe,gp,cmaes,random,sobol,vendor-step,relay,model-based"
+DEFAULT_TUNERS = "safe,tpe,gp,cmaes,random,sobol,vendor-step,relay,model-based"
 
 
 MAX_BUDGET = 10_000

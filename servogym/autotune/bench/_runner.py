@@ -35,8 +35,9 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-ANYTIME_TUNERS = ("tpe", "gp", "cmaes", "random", "sobol")
-"""Tuners whose trial n does not depend on the budget (one run serves every budget)."""
+ANYTIME_TUNERS = ("safe", "tpe", "gp", "cmaes", "random", "sobol")
+"""Tuners whose trial n does not depend on the budget (one run serves every budget: the
+smaller budgets are the prefix of the largest run; tested for each)."""
 
 DETERMINISTIC_TUNERS = ("vendor-step", "relay", "model-based")
 """Tuners that use no seed (one run stands for every seed)."""
