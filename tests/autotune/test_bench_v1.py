@@ -263,3 +263,19 @@ def test_an_anytime_tuners_smaller_budget_is_the_prefix_of_its_larger_run(tuner)
     long = compute_job(Job(tuner, inst_id, 1, 14))
     assert len(short["cost"]) == 6 and len(long["cost"]) == 14
     assert long["cost"][:6] == short["cost"] and long["flags"][:6] == short["flags"]
+
+
+def test_dry_run_estimate_times_real_evaluations_not_the_kept_one(tmp_path):
+    # The instance keeps its last evaluation; the estimate must time the simulation itself
+    # (an evaluation with margins at every latency takes milliseconds on any machine).
+    import re
+
+    from servogym.cli import app
+
+    inst = "servobench-v1/mc2100/rotary/light/fast"
+    args = ["benchmark", "--instance", inst, "--tuners", "tpe", "--budget", "20",
+            "--seeds", "1", "--dry-run", "--out", str(tmp_path)]  # fmt: skip
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    ms = float(re.search(r"mean\s+evaluation\s+([\d.]+) ms", res.output).group(1))
+    assert ms > 2.0
