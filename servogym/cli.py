@@ -599,6 +599,16 @@ def check(
             max_saturation=max_saturation,
         )
         if bench is not None:
+            from servogym.autotune._space import register_values
+
+            values = register_values(loaded.params)
+            held = {k: v for k, v in bench.fixed.items() if values.get(k) != v}
+            if held:
+                _fail(
+                    f"--instance {instance} holds "
+                    + ", ".join(f"{k}={v} (the file has {values.get(k)})" for k, v in held.items())
+                    + "; the set is not one of the instance's"
+                )
             scenario = dataclasses.replace(bench.scenario(), assumptions=loaded.assumptions)
         else:
             scenario = Scenario(

@@ -279,3 +279,28 @@ def test_dry_run_estimate_times_real_evaluations_not_the_kept_one(tmp_path):
     assert res.exit_code == 0, res.output
     ms = float(re.search(r"mean\s+evaluation\s+([\d.]+) ms", res.output).group(1))
     assert ms > 2.0
+
+
+def test_a_failing_job_in_the_process_pool_loses_no_finished_record(tmp_path):
+    from servogym.autotune.bench._runner import Job, load_job, run_jobs
+
+    ok = [Job("random", "servobench-v1/6250/rotary/light/fast", s, 2) for s in range(3)]
+    bad = Job("random", "servobench-v1/6250/rotary/light/nope", 0, 2)  # fails on its worker
+    with pytest.raises(KeyError, match="unknown instance"):
+        run_jobs([*ok, bad], tmp_path, workers=2)
+    assert all(load_job(tmp_path, j) is not None for j in ok)
+
+
+def test_check_instance_refuses_a_set_without_the_instances_held_registers(tmp_path):
+    from servogym.autotune._report import write_param_set
+    from servogym.cli import app
+
+    inst = SUITE.instance(PMAC_ID)
+    params = inst.problem.space.make_params({**inst.default_values(), "output_limit": 32767})
+    write_param_set(params, tmp_path, hardware=False)  # Ixx11 at the chip default, not held
+    res = CliRunner().invoke(
+        app, ["check", str(tmp_path / "best_params.json"), "--instance", PMAC_ID]
+    )
+    assert res.exit_code != 0
+    limit = inst.problem.space.fixed["fatal_following_error_limit"]
+    assert f"holds fatal_following_error_limit={limit} (the file has 32000)" in res.output

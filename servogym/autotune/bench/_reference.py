@@ -200,7 +200,9 @@ def reference_search(instance_id: str, config: ReferenceConfig) -> dict[str, Any
     checked = None
     if config.check_candidates and pool:
         chosen, checked = check_pool(inst, pool, config.check_candidates)
-        if chosen is not None:
+        if chosen is None:  # no safe set passes the check: no best-known set
+            best["feasible"] = False
+        else:
             cost, values, by = chosen
             best.update(cost=cost, values=values, found_by=by)
     # The record's values reproduce its cost exactly (checked by the tests).
@@ -247,22 +249,6 @@ def check_pool(
     return None, {"passed": False, "n_checked": len(rejected), "cheaper_failed": rejected}
 
 
-def _versions() -> dict[str, str]:
-    import importlib.metadata as md
-
-    from servogym.chips.parker6k import SPEC_VERSION as P6K
-    from servogym.chips.pmac import SPEC_VERSION as PMAC
-    from servogym.chips.pmd import SPEC_VERSION as PMD
-
-    out = {"pmd_spec": PMD, "pmac_spec": PMAC, "parker6k_spec": P6K}
-    for pkg in ("servogym", "optuna", "numpy", "mujoco", "numba", "cmaes"):
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            out[pkg] = "unknown"
-    return out
-
-
 def run_reference(
     suite: str,
     out_path: Path,
@@ -280,7 +266,7 @@ def run_reference(
     import concurrent.futures as cf
     import multiprocessing
 
-    from servogym.autotune.bench._runner import one_blas_thread
+    from servogym.autotune.bench._runner import environment, one_blas_thread
     from servogym.autotune.bench._suite import get_suite
 
     config = config or ReferenceConfig.for_suite(suite)
@@ -310,7 +296,7 @@ def run_reference(
                 "feasible=false)",
             },
             "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "versions": _versions(),
+            "versions": environment(),
             "instances": {i: records[i] for i in get_suite(suite).ids("all") if i in records},
         }
         out_path.parent.mkdir(parents=True, exist_ok=True)
@@ -443,7 +429,10 @@ def refine_from_runs(
     changed = []
     for i, new in results.items():
         ref = recs[i]
-        improves = new["cost"] < ref["cost"] or not ref["feasible"]
+        # a set that passed the check replaces any record that did not, whatever its cost
+        failed_check = "check" in ref and not ref["check"]["passed"]
+        passes = new.get("check", {}).get("passed", "check" not in new)
+        improves = new["cost"] < ref["cost"] or not ref["feasible"] or (failed_check and passes)
         if math.isfinite(new["cost"]) and improves:
             changed.append(i)
             recs[i] = {

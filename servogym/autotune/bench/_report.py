@@ -389,14 +389,17 @@ def _unsolved_table(runs: Sequence[Run], tuners: Sequence[str], ids: Sequence[st
     return lines
 
 
-CHIP_FAMILIES = {"mc": "PMD", "turbopmac": "PMAC", "geobrick": "PMAC", "6": "Parker 6000"}
-"""Chip family of an instance by the start of its chip model (lower case)."""
+FAMILY_NAMES = {"pmd": "PMD", "pmac": "PMAC", "parker6k": "Parker 6000"}
+"""How the report names each chip family of the registry."""
 
 
 def instance_family(instance_id: str) -> str:
-    """``"PMD"``, ``"PMAC"`` or ``"Parker 6000"``: the chip family of an instance id."""
-    chip = instance_id.split("/")[1]
-    return next(f for prefix, f in CHIP_FAMILIES.items() if chip.startswith(prefix))
+    """``"PMD"``, ``"PMAC"`` or ``"Parker 6000"``: the chip family of an instance id's chip
+    model, from the chip registry."""
+    from servogym.chips._family import get_chip
+
+    family = get_chip(instance_id.split("/")[1])[0].name
+    return FAMILY_NAMES.get(family, family)
 
 
 def default_tuner() -> str:

@@ -242,7 +242,26 @@ def environment() -> dict[str, str]:
         except PackageNotFoundError:
             out[name] = "not installed"
     out.update(pmd_spec=PMD_SPEC, parker6k_spec=PARKER6K_SPEC, pmac_spec=PMAC_SPEC)
+    out["servogym_source"] = source_digest()
     return out
+
+
+@functools.cache
+def source_digest() -> str:
+    """SHA-256 (16 hex digits) of servogym's Python sources and package data, path by path:
+    two installs of the same commit agree, an edit or another commit differs (the package
+    version alone does not change between commits)."""
+    import hashlib
+
+    import servogym
+
+    root = Path(servogym.__file__).parent
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        if path.suffix in (".py", ".json", ".yml") and "__pycache__" not in path.parts:
+            h.update(path.relative_to(root).as_posix().encode() + b"\0")
+            h.update(path.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
 
 
 class ClusterError(RuntimeError):
@@ -274,7 +293,8 @@ third of an evaluation's time, against a few ms on one thread)."""
 @contextlib.contextmanager
 def one_blas_thread() -> Iterator[None]:
     """Set :data:`ONE_THREAD_ENV` (unless already set) while worker processes start, then
-    restore this process's environment."""
+    restore this process's environment. (Dask's nanny starts its worker processes with the
+    same three variables at 1: ``distributed.nanny.pre-spawn-environ``.)"""
     saved = {k: os.environ.get(k) for k in ONE_THREAD_ENV}
     for k, v in ONE_THREAD_ENV.items():
         os.environ.setdefault(k, v)
@@ -537,12 +557,21 @@ def run_jobs(
         ctx = multiprocessing.get_context("spawn")
         with one_blas_thread(), cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
             futures = {pool.submit(compute_job, job): job for job in ordered}
+            taken: set[Any] = set()
             try:
                 for fut in cf.as_completed(futures):
+                    taken.add(fut)
                     arrived(futures[fut], fut.result())
             except BaseException:
                 for fut in futures:
                     fut.cancel()
+                # the running jobs finish (the pool waits for them anyway) and, with those that
+                # finished meanwhile, are stored, not lost (a resume would rerun them)
+                cf.wait(futures)
+                for fut in futures:
+                    finished = fut.done() and not fut.cancelled() and fut.exception() is None
+                    if fut not in taken and finished:
+                        arrived(futures[fut], fut.result())
                 raise
     return counts[0], counts[1]
 
@@ -641,6 +670,7 @@ def _run_on_cluster(
     owned = isinstance(scheduler, str)
     client = connect(scheduler) if owned else scheduler
     futures: dict[Any, Job] = {}
+    taken: set[Any] = set()
     try:
         check_workers(client)
         expected = environment()
@@ -651,11 +681,18 @@ def _run_on_cluster(
             futures[fut] = job
         for fut in as_completed(list(futures), loop=client.loop):
             job = futures[fut]
+            taken.add(fut)
             if fut.status != "finished":
                 raise _job_error(job, fut)
             rec = fut.result()
             fut.release()
             arrived(job, rec)
+    except BaseException:
+        # jobs that finished meanwhile are stored, not lost (a resume would rerun them)
+        for fut, job in futures.items():
+            if fut not in taken and fut.status == "finished":
+                arrived(job, fut.result())
+        raise
     finally:
         pending = [f for f in futures if not f.done()]
         if pending:

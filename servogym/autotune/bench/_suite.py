@@ -132,9 +132,9 @@ class InstanceSpec:
     def fixed(self) -> dict[str, int]:
         """Registers held at a task's value (v1 Turbo PMAC: Ixx69 and Ixx11); the rest are
         searched or at the chip's defaults."""
-        if self.suite == SUITE_VERSION or not self.chip_model.lower().startswith(
-            ("turbopmac", "geobrick")
-        ):
+        from servogym.chips._family import get_chip
+
+        if self.suite == SUITE_VERSION or get_chip(self.chip_model)[0].name != "pmac":
             return {}
         return {**PMAC_FIXED, "fatal_following_error_limit": pmac_trip_limit(self)}
 
