@@ -217,12 +217,6 @@ class MultiServoLoop:
             isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1
         ):
             raise ValueError(f"substeps must be an integer >= 1; got substeps={substeps!r}")
-        self.ios = tuple(plant.ios) if hasattr(plant, "ios") else (plant.io,)
-        if len(params) != len(self.ios):
-            raise ParameterError(
-                f"the {plant.family.name!r} plant has {len(self.ios)} axes; give one "
-                f"parameter set per axis, got {len(params)}"
-            )
         model = plant.model
         if model.nq != model.nv:
             raise ValueError(f"the servo loop integrates hinge and slide joints only (nq == nv); "
@@ -235,7 +229,12 @@ class MultiServoLoop:
         self.max_error_counts = max_error_counts
         self.settle_band_counts = settle_band_counts
         self._substeps = substeps
-        n = len(self.ios)
+        n = self.n_axes
+        if len(params) != n:
+            raise ParameterError(
+                f"the {plant.family.name!r} plant has {n} axes; give one "
+                f"parameter set per axis, got {len(params)}"
+            )
         self._work = np.zeros(work_size(model.nv, n))
         self._amp = np.zeros((n, 2))
         self._origin = np.zeros(n, np.int64)
@@ -244,13 +243,22 @@ class MultiServoLoop:
         self._state = np.stack([self.chip.new_state() for _ in range(n)])
 
     @property
+    def ios(self) -> tuple[Any, ...]:
+        """The plant's axes as they are now (``plant.ios``, or ``(plant.io,)`` for a
+        single-axis plant): read on every episode, so that a plant edited in place
+        (``plant.set_params``: a screw lead, a gear ratio, an amplifier) is run as it is."""
+        plant = self.plant
+        return tuple(plant.ios) if hasattr(plant, "ios") else (plant.io,)
+
+    @property
     def n_axes(self) -> int:
         """Number of axes."""
         return len(self.ios)
 
     def set_params(self, params: Sequence[Any]) -> None:
         """Load new parameter sets (one per axis); the filter states stay."""
-        chip = check_machine(list(params))
+        params = list(params)
+        chip = check_machine(params)
         if self.chip is not None and chip is not self.chip:
             self._state = np.stack([chip.new_state() for _ in self.ios])
         self.chip = chip
@@ -290,7 +298,8 @@ class MultiServoLoop:
                 (rad or m) instead of the plant's ``io.start_qpos`` (a contour starts on
                 its path: ``servogym.sim._contour``).
         """
-        n = self.n_axes
+        ios = self.ios
+        n = len(ios)
         if len(profiles) != n:
             raise ValueError(f"give one profile per axis ({n}); got {len(profiles)}")
         ticks = max(len(p.position) for p in profiles)
@@ -310,18 +319,18 @@ class MultiServoLoop:
             if start_qpos is not None:
                 if len(start_qpos) != n:
                     raise ValueError(f"give one start_qpos per axis ({n}); got {len(start_qpos)}")
-                for io, q in zip(self.ios, start_qpos, strict=True):
+                for io, q in zip(ios, start_qpos, strict=True):
                     self.plant.data.qpos[io.qpos_adr] = float(q)
                 mujoco.mj_forward(self.plant.model, self.plant.data)
             self._state[:] = 0
             self._amp[:] = 0.0
-            for i, io in enumerate(self.ios):
+            for i, io in enumerate(ios):
                 start = int(profiles[i].start if start_counts is None else start_counts[i])
                 q0 = self.plant.data.qpos[io.qpos_adr]
                 self._origin[i] = int(np.floor(q0 * io.counts_per_unit)) - start
         f = np.array
         lo, hi, max_err = [], [], []
-        for io in self.ios:
+        for io in ios:
             span = io.travel_max - io.travel_min
             lo.append(io.travel_min + TRAVEL_MARGIN * span)
             hi.append(io.travel_max - TRAVEL_MARGIN * span)
@@ -331,7 +340,6 @@ class MultiServoLoop:
         out_command = np.zeros((n, ticks), np.int64)
         out_current = np.zeros((n, ticks))
         m, d = self.plant.model, self.plant.data
-        ios = self.ios
         n_run, reason, axis = multi_closed_loop(
             m._address, d._address, d.qpos, d.qvel, d.qacc, d.qacc_warmstart, d.ctrl,
             f([io.qpos_adr for io in ios], np.int64), f([io.qvel_adr for io in ios], np.int64),

@@ -216,3 +216,30 @@ def test_each_chip_spec_documents_its_sequencing_switch(family, doc):
         f"`{a}`" for a in alternatives
     )
     assert row + " |" in text
+
+
+@pytest.mark.parametrize(
+    ("plant_name", "changes"),
+    [
+        ("xy-stage", {"x_screw_lead_m": 0.02, "x_peak_current_a": 5.0}),
+        ("two-link-arm", {"shoulder_gear_ratio": 80.0, "elbow_encoder_counts_per_rev": 65536}),
+    ],
+)
+def test_a_plant_edited_in_place_runs_as_a_fresh_build_of_it(plant_name, changes):
+    family = MULTI_PLANTS[plant_name]
+    _model, params = chip_params("pmd", 2)
+    plant = family.build()
+    loop = MultiServoLoop(plant, params)
+    before = plant.ios
+    plant.set_params(changes)
+    assert plant.ios != before  # encoder, gearing or amplifier changed
+    loop.set_params(params)
+    fresh = MultiServoLoop(family.build(changes), params)
+    assert loop.ios == fresh.ios == plant.ios
+    profiles = axis_moves(fresh.plant, 300, (1.0, -0.5))
+    a = loop.run(profiles, traces=True)
+    b = fresh.run(profiles, traces=True)
+    assert a.metrics == b.metrics
+    for i in range(2):
+        np.testing.assert_array_equal(a.traces[i].actual, b.traces[i].actual)
+        np.testing.assert_array_equal(a.traces[i].current_a, b.traces[i].current_a)
