@@ -230,11 +230,6 @@ class MultiServoLoop:
         self.settle_band_counts = settle_band_counts
         self._substeps = substeps
         n = self.n_axes
-        if len(params) != n:
-            raise ParameterError(
-                f"the {plant.family.name!r} plant has {n} axes; give one "
-                f"parameter set per axis, got {len(params)}"
-            )
         self._work = np.zeros(work_size(model.nv, n))
         self._amp = np.zeros((n, 2))
         self._origin = np.zeros(n, np.int64)
@@ -256,8 +251,18 @@ class MultiServoLoop:
         return len(self.ios)
 
     def set_params(self, params: Sequence[Any]) -> None:
-        """Load new parameter sets (one per axis); the filter states stay."""
+        """Load new parameter sets (one per axis); the filter states stay.
+
+        Raises:
+            ParameterError: for a count of sets other than the plant's axes, or sets that
+                :func:`check_machine` refuses; the loop is left unchanged.
+        """
         params = list(params)
+        if len(params) != self.n_axes:
+            raise ParameterError(
+                f"the {self.plant.family.name!r} plant has {self.n_axes} axes; give one "
+                f"parameter set per axis, got {len(params)}"
+            )
         chip = check_machine(params)
         if self.chip is not None and chip is not self.chip:
             self._state = np.stack([chip.new_state() for _ in self.ios])
@@ -302,6 +307,8 @@ class MultiServoLoop:
         n = len(ios)
         if len(profiles) != n:
             raise ValueError(f"give one profile per axis ({n}); got {len(profiles)}")
+        if start_counts is not None and len(start_counts) != n:
+            raise ValueError(f"give one start_counts per axis ({n}); got {len(start_counts)}")
         ticks = max(len(p.position) for p in profiles)
         if ticks == 0:
             raise ValueError("profiles have no ticks; an episode needs at least one")

@@ -243,3 +243,16 @@ def test_a_plant_edited_in_place_runs_as_a_fresh_build_of_it(plant_name, changes
     for i in range(2):
         np.testing.assert_array_equal(a.traces[i].actual, b.traces[i].actual)
         np.testing.assert_array_equal(a.traces[i].current_a, b.traces[i].current_a)
+
+
+def test_set_params_refuses_a_set_count_other_than_the_axes():
+    _model, params = chip_params("pmd", 2)
+    loop = MultiServoLoop(MULTI_PLANTS["xy-stage"].build(), params)
+    with pytest.raises(ParameterError, match=r"'xy-stage' plant has 2 axes.*got 1"):
+        loop.set_params(params[:1])
+    with pytest.raises(ParameterError, match=r"'xy-stage' plant has 2 axes.*got 3"):
+        loop.set_params(machine_params("MC2100", 3))
+    assert loop.params == params  # a refused call changes nothing
+    hold = axis_moves(loop.plant, 10, (0.0, 0.0))
+    with pytest.raises(ValueError, match=r"one start_counts per axis \(2\); got 1"):
+        loop.run(hold, start_counts=[0])
