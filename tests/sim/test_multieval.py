@@ -95,14 +95,31 @@ def test_contouring_error_is_at_most_the_synchronous_error():
     assert task.contour.rms_um < 0.5 * np.sqrt(np.mean(synchronous**2))
 
 
-def test_the_payload_changes_the_cost_and_a_zero_gain_set_is_worse():
-    model, params = gains("pmd")
+def test_a_heavier_payload_and_a_weaker_gain_each_raise_the_cost():
+    model, params = gains("pmac")
+    ev = MultiEvaluator("xy-stage", model, SHORT)
+    nominal = ev.evaluate(params)
+    assert not nominal.diverged and nominal.cost < COST_CAP  # below the cap: comparable
+    heavy = ev.evaluate(params, {"payload_kg": 10.0})
+    assert not heavy.diverged and nominal.cost < heavy.cost
+    assert heavy.max_contour_error_um > nominal.max_contour_error_um
+    weak = [dataclasses.replace(p, proportional_gain=p.proportional_gain // 2) for p in params]
+    again = ev.evaluate(weak, {"payload_kg": MULTI_PLANTS["xy-stage"].validate({})["payload_kg"]})
+    assert not again.diverged and nominal.cost < again.cost < COST_CAP
+
+
+def test_plant_values_reach_every_axis_setting_of_the_loop():
+    """A screw lead changed through ``evaluate(plant_values=)`` changes the encoder counts per
+    metre, the profiles and the loop alike: the cost of a fresh evaluator of that plant."""
+    model, params = gains("pmac")
     ev = MultiEvaluator("xy-stage", model, SHORT)
     nominal = ev.evaluate(params).cost
-    heavy = ev.evaluate(params, {"payload_kg": 30.0}).cost
-    assert heavy != nominal
-    weak = [dataclasses.replace(p, kp=p.kp // 8) for p in params]
-    assert ev.evaluate(weak, {"payload_kg": 2.0}).cost > nominal
+    longer = {"x_screw_lead_m": 0.02, "x_peak_current_a": 5.0}
+    edited = ev.evaluate(params, longer)
+    fresh = MultiEvaluator("xy-stage", model, SHORT, plant_values=longer).evaluate(params)
+    assert edited.cost == fresh.cost != nominal
+    for a, b in zip(edited.tasks, fresh.tasks, strict=True):
+        assert a.metrics == b.metrics and a.contour == b.contour
 
 
 @pytest.mark.parametrize("plant", sorted(MULTI_PLANTS))
