@@ -304,3 +304,32 @@ def test_check_instance_refuses_a_set_without_the_instances_held_registers(tmp_p
     assert res.exit_code != 0
     limit = inst.problem.space.fixed["fatal_following_error_limit"]
     assert f"holds fatal_following_error_limit={limit} (the file has 32000)" in res.output
+
+
+def test_a_jobs_result_is_the_cheapest_safe_trial_that_passes_the_check(monkeypatch):
+    from servogym.autotune.bench import _runner
+    from servogym.autotune.bench._report import Run
+    from servogym.sim import _check
+
+    job = _runner.Job("safe", "servobench-v1/6250/rotary/light/fast", 0, 24)
+    rec = _runner.compute_job(job)
+    assert set(rec["checked"]) == {"20", "24"}
+    safe = [(c, i) for i, (c, f) in enumerate(zip(rec["cost"], rec["flags"], strict=True))
+            if c is not None and f == 0]  # fmt: skip
+    assert safe, "the safe tuner found no safe trial: nothing to check"
+    hit = rec["checked"]["24"]
+    inst = SUITE.instance(job.instance)
+    if hit is not None:  # it passes the check, and no cheaper safe trial does
+        assert hit["cost"] == rec["cost"][hit["trial"]] and rec["flags"][hit["trial"]] == 0
+        report = _check.check_params(
+            inst.problem.space.make_params(hit["values"]), inst.problem.scenario
+        )
+        assert report.passed
+        assert Run(rec).best_at(24) == hit["cost"] >= min(c for c, _ in safe)
+    # a check that fails every set: no result, whatever the costs
+    monkeypatch.setattr(_check, "check_params", lambda *a, **k: type("R", (), {"passed": False}))
+    problem = inst.problem
+    trials = [type("T", (), {"user_attrs": {"registers": inst.default_values()}})] * 3
+    none = _runner.checked_results(problem, trials, [1.0, 2.0, None], [0, 0, 1], 3)
+    assert none == {"3": None}
+    assert Run({**rec, "checked": none, "budget": 3}).best_at(3) == math.inf

@@ -60,14 +60,24 @@ class Run:
         self.best = np.minimum.accumulate(np.where(safe, cost, np.inf)) if len(cost) else cost
         self.t = np.asarray(rec.get("t", []), dtype=float)
         self.wall_s = float(rec.get("wall_s", 0.0))
+        self.checked: dict[str, Any] | None = rec.get("checked")
 
     @property
     def n(self) -> int:
         """Evaluations the run used."""
         return len(self.flags)
 
+    def is_checked(self, budget: int) -> bool:
+        """Whether the run's result at ``budget`` went through the check."""
+        return self.checked is not None and str(min(budget, self.budget)) in self.checked
+
     def best_at(self, budget: int) -> float:
-        """Best-so-far within ``budget`` evaluations (inf: no safe trial)."""
+        """The run's result within ``budget`` evaluations: the cheapest safe trial that passed
+        the check, as ``servogym tune`` would write it, where the job checked that budget
+        (``CHECK_BUDGETS``); otherwise the best-so-far safe trial (inf: none)."""
+        if self.is_checked(budget):
+            hit = self.checked[str(min(budget, self.budget))]
+            return math.inf if hit is None else float(hit["cost"])
         k = min(budget, self.n)
         return float(self.best[k - 1]) if k > 0 else math.inf
 
@@ -277,6 +287,7 @@ def summarize(
                     "n_errors": sum(r.error is not None for r in rb),
                     **dict(zip(("q25_rel", "median_rel", "q75_rel"), q, strict=True)),
                     "median_rel_ci95": list(median_ci(ratio)),
+                    "unchecked_runs": sum(not r.is_checked(b) for r in rb),
                     "within_5pct": float(np.mean(ratio <= 1.05)) if len(ratio) else math.nan,
                     "within_10pct": float(np.mean(ratio <= 1.1)) if len(ratio) else math.nan,
                     "no_safe_set": int(np.sum(~np.isfinite(ratio))),

@@ -356,15 +356,59 @@ def compute_job(job: Job, expected: Mapping[str, str] | None = None) -> dict[str
                           t=[])  # fmt: skip
         else:
             costs, flags = _trial_rows(result.trials)
+            wall = round(time.perf_counter() - t0, 3)
             record.update(
-                wall_s=round(time.perf_counter() - t0, 3),
+                wall_s=wall,
                 cost=costs,
                 flags=flags,
                 t=stamps[: len(costs)],
                 best_values=result.best_values,
                 best_feasible=result.feasible,
+                checked=checked_results(problem, result.trials, costs, flags, job.budget),
+                check_s=round(time.perf_counter() - t0 - wall, 3),
             )
     return record
+
+
+CHECK_BUDGETS = (20, 50, 100, 200)
+"""The budgets whose result a job checks (with the job's own budget): a result is reported
+as ``servogym tune`` would write it, the cheapest safe trial within the budget that passes
+the check (:func:`checked_results`)."""
+
+MAX_CHECKS = 10
+"""Trials checked at most per budget, cheapest first (``servogym tune`` checks up to 30)."""
+
+
+def checked_results(
+    problem: Any, trials: Sequence[Any], costs: Sequence[float | None],
+    flags: Sequence[int], budget: int,
+) -> dict[str, dict[str, Any] | None]:  # fmt: skip
+    """For each budget of :data:`CHECK_BUDGETS` below ``budget`` and ``budget`` itself: the
+    cheapest safe trial among the first ``b`` evaluations that passes the check
+    (``servogym.sim.check_params`` on the problem's scenario: the reference integration,
+    every loop latency, load and friction spreads), as ``{"trial": index, "cost": cost,
+    "values": registers}``,
+    or ``None`` when none of the :data:`MAX_CHECKS` cheapest passes. Each trial is checked
+    once, whatever the number of budgets it is cheapest in."""
+    from servogym.sim._check import check_params
+
+    verdicts: dict[int, bool] = {}
+    out: dict[str, dict[str, Any] | None] = {}
+    for b in sorted({x for x in CHECK_BUDGETS if x < budget} | {budget}):
+        ranked = sorted(
+            (c, i) for i, (c, f) in enumerate(zip(costs[:b], flags[:b], strict=True))
+            if c is not None and f & (UNSAFE_FLAGS | FLAG_EXPERIMENT | FLAG_FAILED) == 0
+        )  # fmt: skip
+        out[str(b)] = None
+        for c, i in ranked[:MAX_CHECKS]:
+            values = {k: int(v) for k, v in trials[i].user_attrs["registers"].items()}
+            if i not in verdicts:
+                params = problem.space.make_params(values)
+                verdicts[i] = check_params(params, problem.scenario).passed
+            if verdicts[i]:
+                out[str(b)] = {"trial": i, "cost": c, "values": values}
+                break
+    return out
 
 
 def store_record(out_dir: str | Path, job: Job, record: Mapping[str, Any]) -> bool:
