@@ -28,10 +28,9 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from servogym.chips._axisfile import axes_text, plural
 from servogym.chips._family import ChipFamily, families, family_of, get_chip
+from servogym.chips._formats import check_index
 from servogym.chips._space import ParameterError
 
 DRIVEN_AXES: dict[str, int] = {"GeoBrickLV": 8}
@@ -40,7 +39,9 @@ eight built-in amplifiers (GBL8), though its Turbo firmware addresses motors 1 .
 
 PERIOD_PER_AXIS: frozenset[str] = frozenset({"pmd"})
 """Families whose cycle is time-sliced per enabled axis: ``sample_time_us >= n_axes *
-min_sample_time_us`` (PMD, "4axis*154us/axis" [C]; docs/chips/pmd.md, section 7)."""
+min_sample_time_us`` (PMD, "4axis*154us/axis" [C]; docs/chips/pmd.md, section 7). The one
+statement of the rule: :class:`MultiAxisParams` checks it, and the simulator
+(``servogym.sim.check_machine``, ``machine_params``) reads it from here."""
 
 
 def _noun(family: ChipFamily) -> str:
@@ -67,7 +68,8 @@ class MultiAxisParams(Mapping[int, Any]):
     A read-only mapping ``axis number -> parameter set`` (PMAC: motor number), in axis
     order. ``MultiAxisParams([p1, p2])`` numbers the sets 1, 2 (as
     :func:`servogym.sim.machine_params` returns them); ``MultiAxisParams({1: p1, 3: p3})``
-    names them. :attr:`sets` is the list :class:`servogym.sim.MultiServoLoop` takes.
+    names them. :class:`servogym.sim.MultiServoLoop` (and ``servogym.sim.check_machine``)
+    take it as it is; :attr:`sets` is the list of its sets in axis order.
 
     Args:
         axes: A mapping of axis numbers to parameter sets, or a sequence of sets (axes 1..n).
@@ -112,16 +114,7 @@ class MultiAxisParams(Mapping[int, Any]):
                 f"sets (1 <= number of {plural(self._noun)} <= {most})."
             )
         for number, _p in items:
-            if isinstance(number, bool) or not isinstance(number, int | np.integer):
-                raise ParameterError(
-                    f"{self._noun} numbers must be integers with 1 <= {self._noun} <= {top} "
-                    f"({model}); got {self._noun}={number!r}."
-                )
-            if not 1 <= number <= top:
-                raise ParameterError(
-                    f"{self._noun} must satisfy 1 <= {self._noun} <= {top} ({model} addresses "
-                    f"{top} {plural(self._noun)}); got {self._noun}={int(number)}."
-                )
+            check_index(chip, number, top, noun=self._noun, verb="addresses")
         self._axes: dict[int, Any] = {int(k): v for k, v in sorted(items, key=lambda i: i[0])}
         self._check_shared()
 
@@ -139,9 +132,10 @@ class MultiAxisParams(Mapping[int, Any]):
                     )
         if self._family.name in PERIOD_PER_AXIS:
             n, slot = len(self._axes), self.chip.min_sample_time_us
+            high = first.space["sample_time_us"].high
             if first.sample_time_us < n * slot:
                 raise ParameterError(
-                    f"sample_time_us must satisfy {n * slot} <= sample_time_us <= 65535 for "
+                    f"sample_time_us must satisfy {n * slot} <= sample_time_us <= {high} for "
                     f"{n} enabled axes on the {self.model} (the cycle is time-sliced, {slot} us "
                     f"per axis); got sample_time_us={first.sample_time_us}."
                 )
@@ -331,6 +325,7 @@ def load_axes(path: str | Path, fmt: str | None = None, model: str | None = None
 
 __all__ = [
     "DRIVEN_AXES",
+    "PERIOD_PER_AXIS",
     "MultiAxisParams",
     "axes_text",
     "export_axes",

@@ -31,6 +31,7 @@ from numba import njit
 
 from servogym.chips._base import Move
 from servogym.chips._space import ParameterError
+from servogym.sim._machine import Switch
 
 ELBOWS = ("up", "down")
 """Inverse-kinematics solutions of the two-link arm: ``"up"``, the elbow on the positive side
@@ -40,28 +41,13 @@ mounted vertically), ``"down"`` the mirror image (elbow angle >= 0)."""
 KINDS = ("trapezoidal", "s_curve")
 
 
-@dataclasses.dataclass(frozen=True)
-class ContourMode:
-    """How one chip family takes a contour (an assumption of its spec, default first).
-
-    Attributes:
-        ident: The assumption's id (``"PMD-C1"``).
-        choices: The choices, the default first.
-    """
-
-    ident: str
-    choices: tuple[str, ...]
-
-    @property
-    def default(self) -> str:
-        """The default choice."""
-        return self.choices[0]
-
-
-CONTOUR_MODES: dict[str, ContourMode] = {
-    "pmd": ContourMode("PMD-C1", ("fine", "whole_counts")),
-    "pmac": ContourMode("PMAC-C1", ("cubic", "linear")),
-    "parker6k": ContourMode("PK-C1", ("linear", "hold")),
+CONTOUR_MODES: dict[str, Switch] = {
+    name: Switch(ident, "contour mode", "mode", choices)
+    for name, ident, choices in (
+        ("pmd", "PMD-C1", ("fine", "whole_counts")),
+        ("pmac", "PMAC-C1", ("cubic", "linear")),
+        ("parker6k", "PK-C1", ("linear", "hold")),
+    )
 }
 """Per chip family, how a contour reaches the servo filter (docs/simulation.md, "Contours"):
 
@@ -427,13 +413,7 @@ def sampled_profile(
         segmentation_s: PMAC only: the segmentation time (s), rounded to whole servo
             updates (at least one).
     """
-    spec = CONTOUR_MODES[chip.name]
-    choice = spec.default if mode is None else mode
-    if choice not in spec.choices:
-        raise ParameterError(
-            f"assumption {spec.ident} contour mode must be one of "
-            f"{', '.join(repr(c) for c in spec.choices)}; got mode={choice!r}"
-        )
+    choice = CONTOUR_MODES[chip.name].choose(mode)
     dt = chip.sample_time_s(params)
     t = _times(n_ticks, dt)
     if chip.name == "pmd":
@@ -895,7 +875,6 @@ __all__ = [
     "CirclePath",
     "Commands",
     "ContourError",
-    "ContourMode",
     "FeedLaw",
     "Kinematics",
     "LinePath",

@@ -12,12 +12,13 @@ servo sample. :class:`MultiServoLoop` runs one episode of every axis in one comp
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from servogym.chips._axes import PERIOD_PER_AXIS, MultiAxisParams
 from servogym.chips._family import family_of
 from servogym.chips._space import ParameterError
 from servogym.sim._loop import INTEGRATORS, REASONS
@@ -27,30 +28,51 @@ from servogym.sim._runner import TRAVEL_MARGIN, Traces, current_loop_tau, defaul
 
 
 @dataclasses.dataclass(frozen=True)
-class Sequencing:
-    """How one chip family sequences its axes within a servo cycle (an assumption).
+class Switch:
+    """A named, switchable assumption of one chip family's multi-axis behaviour: how it
+    sequences its axes (:data:`SEQUENCING`) or takes a contour
+    (:data:`servogym.sim._contour.CONTOUR_MODES`).
 
     Attributes:
         ident: The assumption's id in the family's spec (``"PMD-M1"``).
+        what: What is switched, for messages (``"sequencing"``, ``"contour mode"``).
+        argument: The argument that picks a choice (``"sequencing"``, ``"mode"``).
         choices: The choices, the default first.
-        period_per_axis: Whether the shortest servo period grows with the number of enabled
-            axes (PMD: ``n_axes * min_sample_time_us``).
     """
 
     ident: str
+    what: str
+    argument: str
     choices: tuple[str, ...]
-    period_per_axis: bool
 
     @property
     def default(self) -> str:
         """The default choice."""
         return self.choices[0]
 
+    def choose(self, choice: str | None) -> str:
+        """``choice``, or the default for ``None``.
 
-SEQUENCING: dict[str, Sequencing] = {
-    "pmd": Sequencing("PMD-M1", ("in_turn", "simultaneous"), period_per_axis=True),
-    "pmac": Sequencing("PMAC-M1", ("same_interrupt", "in_turn"), period_per_axis=False),
-    "parker6k": Sequencing("PK-M1", ("each_sample", "in_turn"), period_per_axis=False),
+        Raises:
+            ParameterError: naming the assumption, the choices and the value given.
+        """
+        if choice is None:
+            return self.default
+        if choice not in self.choices:
+            raise ParameterError(
+                f"assumption {self.ident} {self.what} must be one of "
+                f"{', '.join(repr(c) for c in self.choices)}; got {self.argument}={choice!r}"
+            )
+        return choice
+
+
+SEQUENCING: dict[str, Switch] = {
+    name: Switch(ident, "sequencing", "sequencing", choices)
+    for name, ident, choices in (
+        ("pmd", "PMD-M1", ("in_turn", "simultaneous")),
+        ("pmac", "PMAC-M1", ("same_interrupt", "in_turn")),
+        ("parker6k", "PK-M1", ("each_sample", "in_turn")),
+    )
 }
 """Per chip family: the axis-sequencing assumption, default first (docs/chips/*.md):
 
@@ -69,52 +91,60 @@ PMAC_MOTOR_FRACTION = 0.01
 """PMAC-M1 ``in_turn``: servo computation per motor as a fraction of the servo period."""
 
 
-def _n_axes_max(params: Any) -> int:
-    model = family_of(params).models[params.model]
-    return int(getattr(model, "n_axes", getattr(model, "n_motors", 1)))
+SIMULATOR_LIMIT = (
+    "the N-axis loop runs every axis at one servo period, so every axis's filter period "
+    "must be equal (on a PMAC: the same Ixx60, servo_cycle_extension, on every motor); a "
+    "limit of this simulator, not of the controller"
+)
+"""The one thing :func:`check_machine` refuses beyond what the controller refuses
+(:class:`~servogym.chips.MultiAxisParams`)."""
 
 
-def check_machine(params: Sequence[Any]) -> Any:
-    """Check that parameter sets make one controller's axes; returns the chip family.
+def machine_axes(params: Any) -> MultiAxisParams:
+    """The axes of one controller that the N-axis loop can run, in axis order.
 
-    Every set must be of one family and one chip model, with one servo period, and the
-    model must have that many axes. On a PMD chip the cycle is time-sliced per enabled axis
-    ("4 axis * 154 us/axis" [C]), so ``sample_time_us >= n_axes * min_sample_time_us``.
+    Args:
+        params: A :class:`~servogym.chips.MultiAxisParams`, a mapping of axis (motor)
+            numbers to parameter sets, or a sequence of sets (axes 1..n).
+
+    Raises:
+        ParameterError: for anything :class:`~servogym.chips.MultiAxisParams` refuses (one
+            chip model, at most the axes the model drives, controller-wide registers equal,
+            the PMD period for its enabled axes), and for :data:`SIMULATOR_LIMIT`.
+    """
+    if not isinstance(params, Mapping | Sequence) or isinstance(params, str | bytes):
+        raise ParameterError(
+            f"params must be parameter sets, one per axis (a sequence, a mapping of axis "
+            f"numbers, or a MultiAxisParams); got params={params!r}"
+        )
+    axes = params if isinstance(params, MultiAxisParams) else MultiAxisParams(params)
+    chip = axes.family
+    (n0, first), *rest = axes.items()
+    for n, p in rest:
+        if chip.sample_time_s(p) != chip.sample_time_s(first):
+            raise ParameterError(
+                f"{SIMULATOR_LIMIT}; {axes.noun} {n0} at {chip.sample_time_s(first)!r} s, "
+                f"{axes.noun} {n} at {chip.sample_time_s(p)!r} s"
+            )
+    return axes
+
+
+def check_machine(params: Any) -> Any:
+    """Check that parameter sets make one controller's axes the N-axis loop runs; returns
+    the chip family.
+
+    The controller's rules are :class:`~servogym.chips.MultiAxisParams`'s (one chip model,
+    at most :func:`~servogym.chips.max_axes` axes, controller-wide registers equal, on a PMD
+    chip ``sample_time_us >= n_axes * min_sample_time_us``: "4 axis * 154 us/axis" [C]);
+    the simulator adds one, :data:`SIMULATOR_LIMIT`.
+
+    Args:
+        params: As for :func:`machine_axes`.
 
     Raises:
         ParameterError: naming the parameter, the value and the legal range.
     """
-    if isinstance(params, str | bytes) or not isinstance(params, Sequence) or not params:
-        raise ParameterError(
-            f"params must be a non-empty sequence of parameter sets, one per axis; got {params!r}"
-        )
-    chip = family_of(params[0])
-    model = params[0].model
-    for i, p in enumerate(params):
-        if family_of(p) is not chip or p.model != model:
-            raise ParameterError(
-                f"every axis of one controller must be the same chip model; axis 0 is "
-                f"{model!r} ({chip.name}), axis {i} is {p.model!r} ({family_of(p).name})"
-            )
-        if chip.sample_time_s(p) != chip.sample_time_s(params[0]):
-            raise ParameterError(
-                f"every axis of one controller runs at one servo period; axis 0 at "
-                f"{chip.sample_time_s(params[0])!r} s, axis {i} at {chip.sample_time_s(p)!r} s"
-            )
-    n, n_max = len(params), _n_axes_max(params[0])
-    if n > n_max:
-        raise ParameterError(
-            f"the {model} has at most {n_max} axes; got {n} parameter sets (1 <= n_axes <= {n_max})"
-        )
-    if SEQUENCING[chip.name].period_per_axis:
-        slot = chip.models[model].min_sample_time_us
-        if params[0].sample_time_us < n * slot:
-            raise ParameterError(
-                f"sample_time_us must satisfy {n * slot} <= sample_time_us <= 65535 for {n} "
-                f"enabled axes on the {model} (the cycle is time-sliced, {slot} us per axis); "
-                f"got sample_time_us={params[0].sample_time_us}"
-            )
-    return chip
+    return machine_axes(params).family
 
 
 def machine_params(chip_model: str, n_axes: int, values: Any = None) -> list[Any]:
@@ -130,7 +160,7 @@ def machine_params(chip_model: str, n_axes: int, values: Any = None) -> list[Any
     model = chip.models[chip_model]
     per_axis = values if isinstance(values, Sequence) else [values or {}] * n_axes
     extra: dict[str, Any] = {}
-    if SEQUENCING[chip.name].period_per_axis:
+    if chip.name in PERIOD_PER_AXIS:
         extra["sample_time_us"] = n_axes * model.sample_time_us
     out = [chip.make_params(chip_model, {**extra, **dict(v or {})}) for v in per_axis]
     check_machine(out)
@@ -144,14 +174,9 @@ def axis_latencies(params: Sequence[Any], assumptions: Any = None, sequencing: s
     the ``loop_latency`` assumption and ``stagger`` the sequencing choice's (0 for
     ``simultaneous``, ``same_interrupt``, ``each_sample``).
     """
-    chip = check_machine(params)
-    seq = SEQUENCING[chip.name]
-    choice = seq.default if sequencing is None else sequencing
-    if choice not in seq.choices:
-        raise ParameterError(
-            f"assumption {seq.ident} sequencing must be one of "
-            f"{', '.join(repr(c) for c in seq.choices)}; got sequencing={choice!r}."
-        )
+    params = machine_axes(params).sets
+    chip = family_of(params[0])
+    choice = SEQUENCING[chip.name].choose(sequencing)
     period = chip.sample_time_s(params[0])
     stagger = 0.0
     if choice == "in_turn":
@@ -187,7 +212,8 @@ class MultiServoLoop:
     Args:
         plant: A built multi-axis plant (``servogym.plants.MULTI_PLANTS[...].build()``),
             or a single-axis plant (then one axis).
-        params: One parameter set per axis, in the plant's axis order
+        params: One parameter set per axis, in the plant's axis order: a sequence, a
+            mapping of axis numbers or a :class:`~servogym.chips.MultiAxisParams`
             (:func:`check_machine`; :func:`machine_params` gives defaults).
         assumptions: The chip's assumption switches (every axis), ``None``: defaults.
         sequencing: The family's axis-sequencing choice (:data:`SEQUENCING`); ``None``:
@@ -199,7 +225,7 @@ class MultiServoLoop:
     def __init__(
         self,
         plant: Any,
-        params: Sequence[Any],
+        params: Any,
         assumptions: Any = None,
         *,
         sequencing: str | None = None,
@@ -250,20 +276,23 @@ class MultiServoLoop:
         """Number of axes."""
         return len(self.ios)
 
-    def set_params(self, params: Sequence[Any]) -> None:
-        """Load new parameter sets (one per axis); the filter states stay.
+    def set_params(self, params: Any) -> None:
+        """Load new parameter sets (one per axis, as for :func:`machine_axes`: a sequence,
+        a mapping of axis numbers or a :class:`~servogym.chips.MultiAxisParams`, in the
+        plant's axis order); the filter states stay.
 
         Raises:
             ParameterError: for a count of sets other than the plant's axes, or sets that
                 :func:`check_machine` refuses; the loop is left unchanged.
         """
-        params = list(params)
+        axes = machine_axes(params)
+        params = axes.sets
         if len(params) != self.n_axes:
             raise ParameterError(
                 f"the {self.plant.family.name!r} plant has {self.n_axes} axes; give one "
                 f"parameter set per axis, got {len(params)}"
             )
-        chip = check_machine(params)
+        chip = axes.family
         if self.chip is not None and chip is not self.chip:
             self._state = np.stack([chip.new_state() for _ in self.ios])
         self.chip = chip
@@ -407,10 +436,12 @@ class MultiServoLoop:
 
 __all__ = [
     "SEQUENCING",
+    "SIMULATOR_LIMIT",
     "MultiEpisodeResult",
     "MultiServoLoop",
-    "Sequencing",
+    "Switch",
     "axis_latencies",
     "check_machine",
+    "machine_axes",
     "machine_params",
 ]

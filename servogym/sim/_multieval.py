@@ -295,15 +295,16 @@ class MultiEvaluator:
 
     def evaluate(
         self,
-        params: Sequence[Any],
+        params: Any,
         plant_values: Mapping[str, Any] | None = None,
         *,
         traces: bool = False,
     ) -> MultiEvaluation:
-        """Cost of ``params`` (one set per axis) on the plant (changed by ``plant_values``)."""
+        """Cost of ``params`` (one set per axis: a sequence, a mapping of axis numbers or a
+        :class:`~servogym.chips.MultiAxisParams`) on the plant (changed by ``plant_values``)."""
         if plant_values is not None:
             self.plant.set_params(dict(plant_values))
-        self.loop.set_params(list(params))
+        self.loop.set_params(params)
         every = self.commands()
         total = sum(c.n_ticks for c in every)
         ran, results = 0, []

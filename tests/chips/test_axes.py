@@ -234,7 +234,7 @@ def test_refusals_of_the_set():
         MultiAxisParams([get_chip("6K")[0].make_params("6K", {"ssfr": s}) for s in (4, 8)])
     with pytest.raises(ParameterError, match=r"1 <= motor <= 32 \(TurboPMAC2"):
         MultiAxisParams({33: pmac.make_params("TurboPMAC2")})
-    with pytest.raises(ParameterError, match="axis numbers must be integers"):
+    with pytest.raises(ParameterError, match=r"axis must be an integer with 1 <= axis <= 8 \(6K\)"):
         MultiAxisParams({"1": get_chip("6K")[0].make_params("6K")})
     with pytest.raises(ParameterError, match="at least one parameter set"):
         MultiAxisParams([])

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from servogym.chips import all_models
+from servogym.chips import MultiAxisParams, all_models, max_axes
 from servogym.chips._space import ParameterError
 from servogym.plants import MULTI_PLANTS, get_plant
 from servogym.sim import (
@@ -20,6 +20,7 @@ from servogym.sim import (
     machine_params,
 )
 from servogym.sim._loop import INTEGRATORS, REASONS, TRAVEL
+from servogym.sim._machine import SIMULATOR_LIMIT
 from servogym.sim._pymultiloop import python_multi_closed_loop
 from servogym.sim._runner import TRAVEL_MARGIN, current_loop_tau
 from tests.sim.test_runner import TWIN_PARAMS, latency_settings, ramp, small_move
@@ -167,13 +168,51 @@ def test_pmac_and_parker_update_every_axis_at_once_by_default():
 def test_a_controller_is_one_chip_model_at_one_period():
     a = machine_params("MC2100", 2)
     b = machine_params("MC2300", 2)
-    with pytest.raises(ParameterError, match="same chip model; axis 0 is 'MC2100'"):
+    with pytest.raises(ParameterError, match="same chip model; axis 1 is 'MC2100'"):
         check_machine([a[0], b[1]])
     slow = all_models()["MC2100"].make_params("MC2100", {"sample_time_us": 500})
-    with pytest.raises(ParameterError, match="one servo period"):
+    with pytest.raises(ParameterError, match="sample_time_us is one setting of the whole"):
         check_machine([a[0], slow])
     with pytest.raises(ParameterError, match="one parameter set per axis, got 1"):
         MultiServoLoop(MULTI_PLANTS["xy-stage"].build(), a[:1])
+    with pytest.raises(ParameterError, match="params must be parameter sets, one per axis"):
+        check_machine(a[0])
+
+
+def test_check_machine_and_max_axes_agree_for_every_model():
+    """One source of the axis count: the sim takes as many axes as the chip layer's
+    max_axes (a Geo Brick LV 8 motors, not the 32 its firmware addresses) and no more."""
+    for model in all_models():
+        most = max_axes(model)
+        sets = machine_params(model, most)
+        assert check_machine(sets) is all_models()[model]
+        assert check_machine(MultiAxisParams(sets)) is all_models()[model]
+        with pytest.raises(ParameterError, match=rf"the {model} drives at most {most} "):
+            machine_params(model, most + 1)
+        with pytest.raises(ParameterError, match=rf"the {model} drives at most {most} "):
+            check_machine(sets + sets[:1])
+
+
+def test_the_only_simulator_limit_is_one_filter_period():
+    """A PMAC servoes motors at different Ixx60 (the controller takes it); the N-axis loop
+    runs one period, and says that this is its own limit."""
+    pmac = all_models()["TurboPMAC2"]
+    sets = [pmac.make_params("TurboPMAC2", {"servo_cycle_extension": e}) for e in (0, 1)]
+    assert MultiAxisParams(sets).numbers == (1, 2)
+    assert SIMULATOR_LIMIT.startswith("the N-axis loop runs every axis at one servo period")
+    with pytest.raises(ParameterError, match=r"Ixx60.*a limit of this simulator.*motor 1 at"):
+        check_machine(sets)
+
+
+def test_the_loop_takes_a_multi_axis_params_or_a_mapping():
+    _model, params = chip_params("pmac", 2)
+    stage = MULTI_PLANTS["xy-stage"].build()
+    profiles = axis_moves(stage, 60, (1.0, 1.0))
+    by_list = MultiServoLoop(stage, params).run(profiles)
+    for sets in (MultiAxisParams(params), {1: params[0], 2: params[1]}):
+        loop = MultiServoLoop(stage, sets)
+        assert loop.params == params
+        assert loop.run(profiles).metrics == by_list.metrics
 
 
 def test_the_elbow_moving_alone_torques_the_shoulder():
