@@ -65,6 +65,11 @@ CONTOUR_MODES: dict[str, Switch] = {
   ``linear`` or ``hold``; velocity and acceleration per period as PK-P5.
 """
 
+MAX_JUMP_PER_TICK = 0.2
+"""Largest change of a joint's commanded position in one servo tick (rad or m) that
+:func:`contour` takes: more is the arm's inverse kinematics flipping near its singularity,
+or on the stage a feed no servo loop follows."""
+
 SEGMENTATION_S = 0.005
 """Default PMAC segmentation time (Isx13 = 5 ms), rounded to whole servo updates."""
 
@@ -643,12 +648,18 @@ def contour(
     for k, io in enumerate(ios):
         for q in (dense[:, k].min(), dense[:, k].max()):
             _check_travel(plant, io, k, float(q), "the path")
-    jumps = np.abs(np.diff(dense, axis=0)).max(axis=0) if moving > 1 else np.zeros(2)
+    jumps = np.abs(np.diff(np.vstack([q_start[None, :], dense]), axis=0)).max(axis=0)
     for k, j in enumerate(jumps):
-        if j > 0.2:
+        if j > MAX_JUMP_PER_TICK:
+            unit, hint = "m", ""
+            if kin.family == "two-link-arm":
+                unit = "rad"
+                hint = (
+                    "keep the path away from the edges of the arm's reach (its singularities) or "
+                )
             raise ParameterError(
-                f"the path passes the arm's singularity (axis {plant.family.axes[k]!r} jumps "
-                f"{j:.3g} rad in one tick): keep it inside the reach, away from the centre"
+                f"the contour moves axis {plant.family.axes[k]!r} {j:.3g} {unit} in one tick, "
+                f"more than {MAX_JUMP_PER_TICK} {unit}: {hint}lower speed={speed!r} (m/s)"
             )
     t_shift = before * dt
     profiles = []

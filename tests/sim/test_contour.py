@@ -299,3 +299,16 @@ def test_a_contour_runs_from_its_start_configuration(built, family):
     assert err.rms_um <= err.max_um
     with pytest.raises(ValueError, match=r"give one start_qpos per axis \(2\); got 1"):
         loop.run(list(cmd.profiles), start_qpos=[0.1])
+
+
+def test_a_jump_in_one_tick_is_refused_in_the_plant_s_own_terms(built):
+    arm = MultiServoLoop(built["two-link-arm"], machine_params("MC2100", 2))
+    with pytest.raises(
+        ParameterError, match=r"moves axis '\w+' .* rad in one tick.*edges of the arm's reach"
+    ):
+        contour(arm, LinePath((0.3, -0.1), (0.3, 0.1)), 300.0, 1e9)
+    stage = MultiServoLoop(built["xy-stage"], machine_params("MC2100", 2))
+    with pytest.raises(
+        ParameterError, match=r"moves axis 'x' .* m in one tick.*: lower speed=1000"
+    ):
+        contour(stage, LinePath((-0.15, 0.0), (0.15, 0.0)), 1000.0, 1e8)
