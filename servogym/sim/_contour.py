@@ -433,7 +433,10 @@ def sampled_profile(
             velocity = 65536 * np.diff(whole, prepend=np.int64(start))
             position = whole
         acceleration = np.diff(velocity, prepend=np.int64(0))
-        return Profile(_wrap32(position), velocity, acceleration, move_ticks, int(start))
+        return Profile(
+            position=_wrap32(position), velocity=velocity, acceleration=acceleration,
+            move_ticks=move_ticks, start=int(start),
+        )  # fmt: skip
     if chip.name == "pmac":
         from servogym.chips.pmac._profile import Profile
 
@@ -443,7 +446,10 @@ def sampled_profile(
         x = _interpolate(seg_x, (t / (every * dt)) + 1.0, cubic=choice == "cubic")
         fine = np.floor(32.0 * x + 0.5).astype(np.int64)
         acceleration = np.diff(np.diff(fine, prepend=np.int64(32 * start)), prepend=np.int64(0))
-        return Profile(_wrap32(fine >> 5), fine & 31, acceleration, int(start), move_ticks)
+        return Profile(
+            position=_wrap32(fine >> 5), velocity=fine & 31, acceleration=acceleration,
+            start=int(start), move_ticks=move_ticks,
+        )  # fmt: skip
     from servogym.chips.parker6k._profile import MICRO, Parker6kProfile, ssfr_of
 
     ssfr = ssfr_of(dt)
@@ -464,8 +470,8 @@ def sampled_profile(
     change = np.diff(steps, prepend=np.int64(0))
     acceleration = np.repeat(_round_div(change * MICRO, tt_us * tt_us), ssfr)
     return Parker6kProfile(
-        _wrap32(position[:n_ticks]), velocity[:n_ticks], acceleration[:n_ticks], int(start),
-        move_ticks, ssfr,
+        position=_wrap32(position[:n_ticks]), velocity=velocity[:n_ticks],
+        acceleration=acceleration[:n_ticks], start=int(start), move_ticks=move_ticks, ssfr=ssfr,
     )  # fmt: skip
 
 
