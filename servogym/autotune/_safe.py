@@ -517,22 +517,13 @@ class _LineSearchSession:
             done[i] = session.candidates([sets[i]])[0]
             return done[i]
 
-        def safe(o: Any) -> bool:
-            c = (
-                problem.constraint_values(o, session.fe_limit)
-                if problem.constraints.enabled
-                else {}
-            )
-            return o.n_diverged == 0 and all(v <= 0 for v in c.values())
-
-        def scaled(o: Any) -> dict[str, float]:
+        def values(o: Any) -> dict[str, float]:
             if not problem.constraints.enabled:
                 return {}
-            c = problem.constraint_values(o, session.fe_limit)
-            bound = {"max_following_error": session.fe_limit,
-                     "saturation_fraction": max(problem.constraints.max_saturation, 0.01),
-                     "gain_margin": 6.0, "phase_margin": 30.0}  # fmt: skip
-            return {k: v / bound[k] for k, v in c.items() if k in bound}
+            return problem.constraint_values(o, session.fe_limit)
+
+        def safe(o: Any) -> bool:
+            return o.n_diverged == 0 and all(v <= 0 for v in values(o).values())
 
         def walk(start: int, step: int) -> None:
             i = start
@@ -541,7 +532,8 @@ class _LineSearchSession:
                 if prev is None or not safe(prev):
                     return
                 if prev2 is not None:  # extrapolate the constraints one step on
-                    a, b = scaled(prev), scaled(prev2)
+                    # (violated when 2a - b > 0: the same answer in any units, so raw values)
+                    a, b = values(prev), values(prev2)
                     if any(2 * a[k] - b[k] > 0 for k in a if k in b):
                         return
                 o = score(i + step)
@@ -559,11 +551,7 @@ class _LineSearchSession:
                 walk(mid, +1)
         else:
             # Margins or divergence: slower; following error or saturation only: faster.
-            c = (
-                problem.constraint_values(first, session.fe_limit)
-                if problem.constraints.enabled
-                else {}
-            )
+            c = values(first)
             loop = first.n_diverged > 0 or any(
                 c.get(k, 0) > 0 for k in ("gain_margin", "phase_margin", "diverged")
             )
