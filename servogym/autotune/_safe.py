@@ -391,6 +391,9 @@ def _sampler_class() -> type:
         def __init__(self, model: _Model, seed: int) -> None:
             self._model = model
             self._seed = seed
+            self.trial_user_attrs: dict[str, Any] = {}
+            """What the session stores on the trial this sampler asked (its centre), with
+            ``Trial.set_user_attr`` after the ask."""
 
         def infer_relative_search_space(self, study: Any, trial: Any) -> dict[str, Any]:
             return self._model.space.distributions()
@@ -398,10 +401,10 @@ def _sampler_class() -> type:
         def sample_relative(self, study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
             if not search_space:
                 return {}
-            trials = study._get_trials(deepcopy=False, use_cache=True)
+            trials = study.get_trials(deepcopy=False)
             x, centre = self._model.propose(trials, np.random.default_rng(self._seed))
             if centre is not None:  # the trust region's replay needs it
-                study._storage.set_trial_user_attr(trial._trial_id, CENTRE_KEY, centre)
+                self.trial_user_attrs[CENTRE_KEY] = centre
             return {u: float(v) for u, v in zip(self._model.unit_names, x, strict=True)}
 
         def sample_independent(self, study: Any, trial: Any, name: str, dist: Any) -> Any:

@@ -593,6 +593,11 @@ def per_trial_sampler(
             if self._inner is not None:
                 self._inner.after_trial(study, trial, state, values)
 
+        def trial_user_attrs(self) -> dict[str, Any]:
+            """User attributes the inner sampler gives the trial it just asked (its
+            ``trial_user_attrs``, if any); the session sets them after the ask."""
+            return dict(getattr(self._inner, "trial_user_attrs", None) or {})
+
     return _PerTrialSeeded()
 
 
@@ -1062,6 +1067,9 @@ class Session:
             warnings.simplefilter("ignore", category=Warning)
             for _ in range(n):
                 trial = self.study.ask(dict(dists))
+                given = getattr(self.study.sampler, "trial_user_attrs", None)
+                for key, value in (given() if given is not None else {}).items():
+                    trial.set_user_attr(key, value)  # e.g. the safe tuner's centre
                 with self._running_lock:
                     self._running[trial._trial_id] = trial
                 if self._beat_at_ask:
