@@ -159,6 +159,7 @@ class _Model:
         }
         self.names: list[str] | None = None
         self.rows: dict[int, _Row] = {}
+        self._first_error: str | None = None  # the first refused set's error, for the log
         self._fit_cache: tuple[Any, _GP] | None = None
         base = {
             **self.space.family.parameter_space(self.space.chip_model).defaults(),
@@ -193,6 +194,7 @@ class _Model:
             return _Row(t.number, kind, x, log_cost, cons, safe, t.user_attrs.get(CENTRE_KEY))
         if t.state.name == "FAIL" and "error" in t.user_attrs:
             # A set a family's cross-register rule refuses: never proposed again.
+            self._first_error = self._first_error or str(t.user_attrs["error"])
             return _Row(t.number, kind, x, math.nan, np.array([]), False,
                         t.user_attrs.get(CENTRE_KEY))  # fmt: skip
         return None
@@ -283,8 +285,12 @@ class _Model:
         radius, best = self.trust_region(rows)
         scored = [r for r in rows if not math.isnan(r.log_cost)]
         if best is None and not scored:
-            # Nothing evaluated yet: the start (the chip's defaults or the warm start).
-            return self.start.copy(), None
+            if not rows and not pending:
+                # Nothing asked yet: the start (the chip's defaults or the warm start).
+                return self.start.copy(), None
+            # Nothing scored: the start (and any set since) refused by a cross-register
+            # rule, or still running. Proposing the start again would be refused again.
+            return self._near_start(rows, pending, rng), None
         if best is None:  # nothing safe yet: head for the least violation
             centre_row = min(scored, key=lambda r: (float(r.cons.max()), r.log_cost))
         else:
@@ -306,6 +312,24 @@ class _Model:
                 fallback = least
         # Nothing predicted safe even at 1/8 of the radius: the likeliest safe candidate.
         return (fallback[1] if fallback is not None else centre.copy()), centre_row.number
+
+    def _near_start(
+        self, rows: list[_Row], pending: list[np.ndarray], rng: np.random.Generator
+    ) -> np.ndarray:
+        """A point near the start while no set is scored: the candidate farthest from every
+        point asked so far (refused or pending, so never one of them), in a box around the
+        start whose half-width, :attr:`SafeTuner.initial_radius` at first, doubles with each
+        refused set (a rule refuses a region, not a point) up to the whole cube."""
+        if rows:
+            logger.info(
+                "safe: %d set(s) refused and none evaluated (first refusal: %s); moving away "
+                "from the start", len(rows), self._first_error,
+            )  # fmt: skip
+        taken = np.array([r.x for r in rows] + list(pending))
+        radius = np.full(self.dim, min(self.tuner.initial_radius * 2.0 ** len(rows), 2.0))
+        cands = self._candidates(self.start, radius, rng)
+        gap = ((cands[:, None, :] - taken[None, :, :]) ** 2).sum(-1).min(1)
+        return cands[int(np.argmax(gap))]
 
     def _local(self, rows: list[_Row], centre: np.ndarray) -> list[_Row]:
         """The :attr:`SafeTuner.n_local` rows nearest the centre (unique points)."""

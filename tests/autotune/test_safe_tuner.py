@@ -142,6 +142,58 @@ def test_on_a_cheap_problem_it_is_safer_than_tpe_and_ends_no_worse_than_its_star
     assert n_unsafe["safe"] < 0.5 * n_unsafe["tpe"]
 
 
+def _refuse(monkeypatch, rule):
+    """Make ``SearchSpace.make_params`` refuse the sets ``rule(values)`` names, as a family's
+    cross-register rule does (a ValueError before any evaluation)."""
+    from servogym.autotune import SearchSpace
+
+    real = SearchSpace.make_params
+
+    def make_params(self, values):
+        if rule(values):
+            raise ValueError("kp too close to the start (test rule)")
+        return real(self, values)
+
+    monkeypatch.setattr(SearchSpace, "make_params", make_params)
+
+
+def test_a_refused_start_is_not_proposed_again(monkeypatch):
+    # Below the design's budget the search starts at the chip's defaults; when a rule
+    # refuses them, the tuner spent its whole budget asking the same refused set again.
+    problem = short_problem("MC2100", "rotary", seed=3)
+    defaults = problem.space.family.parameter_space(problem.space.chip_model).defaults()
+    start = {**defaults, **problem.space.fixed}
+    _refuse(monkeypatch, lambda values: all(v == start[n] for n, v in values.items()))
+    result = run_study(problem, "safe", 3, storage=None, n_workers=1, batch_size=1)
+    states = [t.state.name for t in result.trials]
+    assert states == ["FAIL", "COMPLETE", "COMPLETE"]
+    assert result.trials[0].user_attrs["error"] == "kp too close to the start (test rule)"
+    units = [tuple(t.params.values()) for t in result.trials]
+    assert len(set(units)) == 3
+
+
+def test_a_refused_warm_start_region_is_left_and_no_refused_set_is_asked_twice(monkeypatch):
+    # The rule refuses a band of kp around the warm start: the box around the start grows
+    # with each refusal until a set outside the band is evaluated.
+    problem = short_problem("MC2100", "rotary", seed=4)
+    design = run_study(problem, "model-based", 9, storage=None, n_workers=1)
+    warm = design.best_values
+    kp = problem.space.to_unit(warm)["u_kp"]
+
+    def near(values):
+        return abs(problem.space.to_unit({**warm, **values})["u_kp"] - kp) < 0.1
+
+    _refuse(monkeypatch, near)
+    result = run_study(problem, "safe", 16, storage=None, n_workers=1, batch_size=4,
+                       warm_start=warm)  # fmt: skip
+    trials = result.trials
+    assert trials[0].user_attrs["kind"] == "warm_start" and trials[0].state.name == "FAIL"
+    refused = [tuple(t.params.values()) for t in trials if t.state.name == "FAIL"]
+    assert len(set(refused)) == len(refused)  # never the same refused point twice
+    assert sum(t.state.name == "COMPLETE" for t in trials) >= 4
+    assert math.isfinite(result.best.values[0])
+
+
 def test_the_design_line_search_scores_fewer_candidates_than_the_procedure():
     problem = short_problem("MC2100", "vertical-axis", seed=0)
     safe = run_study(problem, "safe", 9, storage=None, n_workers=1)
