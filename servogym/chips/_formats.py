@@ -8,6 +8,7 @@ formats of those files.
 
 from __future__ import annotations
 
+import difflib
 import re
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
@@ -115,6 +116,26 @@ def read_header(
     return fields
 
 
+JSON_EXPORT_KEYWORDS = ("assumptions", "metrics", "notes", "created")
+"""The keywords a JSON export takes (:meth:`FileSchema.write`)."""
+
+
+def _check_keywords(function: str, fmt: str, kw: Mapping[str, Any], takes: Iterable[str]) -> None:
+    """A ParameterError naming the format and the keywords it takes, for any other in ``kw``."""
+    takes = tuple(takes)
+    unknown = [k for k in kw if k not in takes]
+    if not unknown:
+        return
+    listed = ", ".join(takes) if takes else "none"
+    got = ", ".join(f"{k}={kw[k]!r}" for k in unknown)
+    close = [m for k in unknown for m in difflib.get_close_matches(k, takes, n=1)]
+    hint = f" Did you mean {', '.join(close)}?" if close else ""
+    raise ParameterError(
+        f"{function}(fmt={fmt!r}) takes the keywords {listed}"
+        f"{' (besides model)' if function == 'import_params' else ''}; got {got}.{hint}"
+    )
+
+
 class Formats:
     """A family's export formats: JSON (the shared layout) and its own files.
 
@@ -123,8 +144,15 @@ class Formats:
         extensions: Format -> suggested file extension, ``"json"`` first.
         writers: Format -> ``(params, **kw) -> str`` for every format but JSON.
         readers: Format -> ``(text, model, **kw) -> params`` for every format but JSON.
-        index: The keyword that names the axis (``"axis"``; PMAC: ``"motor"``), which a JSON
-            file, holding one set, ignores on export and refuses on import.
+        export_keywords: Format -> the keywords its writer takes (default ``axis`` and
+            ``assumptions``), for every format but JSON; any other keyword is refused with a
+            ParameterError naming the format and these. JSON's export takes ``assumptions``,
+            ``metrics``, ``notes``, ``created``, and ignores ``axis`` and ``index`` (a JSON file
+            holds one set).
+        import_keywords: Format -> the keywords its reader takes besides ``model`` (default
+            none), for every format but JSON. JSON's import takes none: ``axis`` or
+            ``index`` other than None is refused (a JSON file holds one set).
+        index: The keyword that names the axis (``"axis"``; PMAC: ``"motor"``).
         ignore_case: Whether ``fmt`` matches in any case.
         axis_writers: Format -> ``(axes, assumptions) -> str`` for every format but JSON:
             the file of several axes (``axes`` maps axis number -> set, in axis order).
@@ -139,6 +167,8 @@ class Formats:
         writers: Mapping[str, Callable[..., str]],
         readers: Mapping[str, Callable[..., Any]],
         *,
+        export_keywords: Mapping[str, Iterable[str]] | None = None,
+        import_keywords: Mapping[str, Iterable[str]] | None = None,
         index: str = "axis",
         ignore_case: bool = False,
         axis_writers: Mapping[str, Callable[..., str]] | None = None,
@@ -149,6 +179,15 @@ class Formats:
         self.writers = dict(writers)
         self.readers = dict(readers)
         self.index = index
+        self.export_keywords = {
+            "json": tuple(dict.fromkeys((*JSON_EXPORT_KEYWORDS, "axis", index))),
+            **{f: tuple((export_keywords or {}).get(f, ("axis", "assumptions")))
+               for f in self.writers},
+        }  # fmt: skip
+        self.import_keywords = {
+            "json": (),
+            **{f: tuple((import_keywords or {}).get(f, ())) for f in self.readers},
+        }
         self.ignore_case = ignore_case
         self.axis_writers = dict(axis_writers or {})
         self.axis_readers = dict(axis_readers or {})
@@ -160,6 +199,7 @@ class Formats:
     def export(self, params: Any, fmt: str, **kw: Any) -> str:
         """See the family's ``export``."""
         fmt = self.check(fmt)
+        _check_keywords("export", fmt, kw, self.export_keywords[fmt])
         if fmt == "json":
             kw.pop("axis", None)
             kw.pop(self.index, None)
@@ -170,11 +210,17 @@ class Formats:
         """See the family's ``import_params``."""
         fmt = self.check(fmt)
         if fmt == "json":
-            if kw.get(self.index) is not None and self.index != "axis":
-                raise ParameterError(
-                    f"{self.index}= applies to fmt={next(iter(self.readers))!r} only; a JSON "
-                    f"file has no {self.index}."
-                )
+            for name in dict.fromkeys(("axis", self.index)):
+                if kw.get(name) is not None:
+                    takes = [f for f, names in self.import_keywords.items() if name in names]
+                    where = f" ({name}= applies to fmt={' or '.join(map(repr, takes))} only)"
+                    raise ParameterError(
+                        f"import_params(fmt='json') takes no {name}: a JSON file holds one "
+                        f"set{where if takes else ''}; got {name}={kw[name]!r}."
+                    )
+                kw.pop(name, None)
+        _check_keywords("import_params", fmt, kw, self.import_keywords[fmt])
+        if fmt == "json":
             return self.schema.read_params(text, model)
         return self.readers[fmt](text, model, **kw)
 
@@ -251,7 +297,8 @@ _EXPORT_DOC = """Export a parameter set in one of :data:`FORMATS`.
         The exported text; :data:`FILE_EXTENSIONS` suggests a file extension.
 
     Raises:
-        ParameterError: for an unknown format (listing the formats) or an illegal set.
+        ParameterError: for an unknown format (listing the formats), a keyword the format
+            does not take (naming those it takes) or an illegal set.
     """
 
 _IMPORT_DOC = """Import a parameter set exported in one of :data:`FORMATS`.
@@ -266,6 +313,7 @@ _IMPORT_DOC = """Import a parameter set exported in one of :data:`FORMATS`.
         The {params} (for the provenance of a JSON file use :func:`from_json`).
 
     Raises:
-        ParameterError: for an unknown format (listing the formats) or anything the
-            format's importer rejects.
+        ParameterError: for an unknown format (listing the formats), a keyword the format
+            does not take (naming those it takes; a JSON file takes no axis), or anything
+            the format's importer rejects.
     """

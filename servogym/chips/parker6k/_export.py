@@ -574,6 +574,7 @@ FORMAT_TABLE = Formats(
         form: lambda text, model, axis=None, form=form: from_command_file(text, form, model, axis)
         for form in ("6250", "6k")
     },
+    import_keywords={"6250": ("axis",), "6k": ("axis",)},
     ignore_case=True,
     axis_writers={
         form: lambda axes, assumptions, form=form: _command_text(axes, form, assumptions)

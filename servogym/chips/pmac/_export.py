@@ -418,6 +418,8 @@ FORMAT_TABLE = Formats(
     FILE_EXTENSIONS,
     writers={"ivar": _write_ivar},
     readers={"ivar": lambda text, model, motor=None: from_ivar(text, model, motor)},
+    export_keywords={"ivar": ("motor", "axis", "assumptions")},
+    import_keywords={"ivar": ("motor",)},
     index="motor",
     axis_writers={"ivar": _ivar_text},
     axis_readers={"ivar": _ivar_axes},
