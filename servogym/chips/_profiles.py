@@ -41,13 +41,15 @@ def check_arrays(profile: Any) -> int:
     """Make a frozen profile's arrays 1-D C-contiguous int64 of one length; return it.
 
     Raises:
-        ValueError: naming the profile class, for an array that is not 1-D or lengths that
+        ValueError: naming the profile class and the array, for an array that is not 1-D,
+            holds anything but integers (a float array holding only whole numbers is taken;
+            a fraction, NaN or infinity is refused rather than truncated), or lengths that
             differ.
     """
     kind = type(profile).__name__
     sizes = {}
     for name in PROFILE_ARRAYS:
-        arr = np.ascontiguousarray(getattr(profile, name), dtype=np.int64)
+        arr = _int64_array(f"{kind}.{name}", getattr(profile, name))
         if arr.ndim != 1:
             raise ValueError(f"{kind}.{name} must be 1-D; got shape {arr.shape}.")
         object.__setattr__(profile, name, arr)
@@ -55,3 +57,31 @@ def check_arrays(profile: Any) -> int:
     if len(set(sizes.values())) != 1:
         raise ValueError(f"{kind} arrays must have the same length; got {sizes}.")
     return sizes["position"]
+
+
+_INT64 = np.iinfo(np.int64)
+
+
+def _int64_array(label: str, value: Any) -> np.ndarray:
+    """``value`` as a C-contiguous int64 array, refusing what a cast would change."""
+    arr = np.asarray(value)
+    kind = arr.dtype.kind
+    if kind == "f" and arr.size:
+        bad = ~np.isfinite(arr) | (arr != np.round(arr))
+        bad |= (arr < _INT64.min) | (arr >= 2.0**63)
+        if bad.any():
+            i = int(np.flatnonzero(bad.ravel())[0])
+            raise ValueError(
+                f"{label} must hold integers (a whole number of counts or 16.16 units per "
+                f"entry, within int64); got {arr.dtype} with entry {i} = "
+                f"{float(arr.ravel()[i])!r}, which a cast to int64 would change."
+            )
+    elif kind == "u" and arr.size and int(arr.max()) > _INT64.max:
+        raise ValueError(
+            f"{label} must fit int64 (<= {_INT64.max}); got {int(arr.max())} ({arr.dtype})."
+        )
+    elif kind not in "iuf":
+        raise ValueError(
+            f"{label} must be an integer array; got dtype {arr.dtype} (kind {kind!r})."
+        )
+    return np.ascontiguousarray(arr, dtype=np.int64)

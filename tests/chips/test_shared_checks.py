@@ -6,10 +6,14 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 import pytest
 
 import servogym.chips.pmac  # noqa: F401  (chips.families() does not load PMAC by itself yet)
 from servogym.chips import ParameterError, families
+from servogym.chips.parker6k._profile import Parker6kProfile
+from servogym.chips.pmac._profile import Profile as PMACProfile
+from servogym.chips.pmd._profile import Profile as PMDProfile
 
 CASES = [(name, fmt) for name, fam in sorted(families().items()) for fmt in fam.formats]
 """Every family's every export format (from the registry)."""
@@ -79,3 +83,32 @@ def test_a_json_import_refuses_the_axis_the_native_format_takes(family):
                        rf"set \({table.index}= applies to fmt={re.escape(listed)} only\); "
                        rf"got {table.index}=2\."):  # fmt: skip
         module.import_params(text, "json", **{table.index: 2})
+
+
+# ---------------------------------------------------------------- profile arrays
+
+PROFILES = [
+    (PMDProfile, {"move_ticks": 3, "start": 0}),
+    (PMACProfile, {"start": 0, "move_ticks": 3}),
+    (Parker6kProfile, {"start": 0, "move_ticks": 3}),
+]
+
+
+@pytest.mark.parametrize(("cls", "extra"), PROFILES, ids=lambda c: getattr(c, "__module__", ""))
+@pytest.mark.parametrize("array", ["position", "velocity", "acceleration"])
+def test_a_profile_array_that_a_cast_would_change_is_refused_naming_it(cls, extra, array):
+    ok = {"position": [0, 5, 9], "velocity": [0, 3, 1], "acceleration": [0, 1, -1]}
+    whole = cls(**{**ok, array: np.array(ok[array], dtype=float)}, **extra)
+    assert getattr(whole, array).dtype == np.int64  # whole numbers in a float array: taken
+    assert getattr(whole, array).tolist() == ok[array]
+    for bad, shown in ((1.5, "1.5"), (np.nan, "nan"), (np.inf, "inf"), (2.0**63, "9.2")):
+        values = np.array(ok[array], dtype=float)
+        values[1] = bad
+        with pytest.raises(ValueError, match=rf"{cls.__name__}\.{array} must hold integers.*"
+                           rf"entry 1 = {shown}"):  # fmt: skip
+            cls(**{**ok, array: values}, **extra)
+    with pytest.raises(ValueError, match=rf"{cls.__name__}\.{array} must be an integer array; "
+                       r"got dtype bool"):  # fmt: skip
+        cls(**{**ok, array: np.array([True, False, True])}, **extra)
+    with pytest.raises(ValueError, match=rf"{cls.__name__}\.{array} must fit int64"):
+        cls(**{**ok, array: np.array([0, 2**64 - 1, 0], dtype=np.uint64)}, **extra)
