@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import os
 import re
+import sys
 import warnings
 from collections.abc import Iterable, Mapping
 from typing import Any
@@ -36,6 +38,22 @@ from servogym.chips._paramfile import (
     verify_checksum,
 )
 from servogym.chips._space import ParameterError
+
+_PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
+"""The servogym package's folder (with the separator): frames in it are not the user's."""
+
+
+def user_stacklevel() -> int:
+    """The ``stacklevel`` that makes a warning raised by this function's caller point at the
+    first line outside servogym (the user's call of ``import_axes``, ``load_axes``, ...),
+    however many servogym functions lie between."""
+    frame = sys._getframe(1)  # the function that calls warnings.warn: stacklevel 1
+    level = 1
+    while frame.f_back is not None and frame.f_code.co_filename.startswith(_PACKAGE_DIR):
+        frame = frame.f_back
+        level += 1
+    return level
+
 
 AXES_FORMAT = "servogym-axes"
 """Value of the ``format`` key of a multi-axis JSON parameter file."""
@@ -278,7 +296,7 @@ def _read_axes_doc(
             f"implements {schema.spec_version!r}: the {schema.noun}s load unchanged, but the "
             f"emulated behaviour may differ from the one its metrics were measured with.",
             UserWarning,
-            stacklevel=4,
+            stacklevel=user_stacklevel(),  # import_axes, load_axes: the caller's line
         )
     provenance = {k: v for k, v in doc.items() if k not in ("axes", "assumptions", "checksum")}
     first = sets[min(sets)]

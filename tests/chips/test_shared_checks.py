@@ -4,13 +4,14 @@ file's spec-version warning points (``chips._axisfile``)."""
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
 import pytest
 
 import servogym.chips.pmac  # noqa: F401  (chips.families() does not load PMAC by itself yet)
-from servogym.chips import ParameterError, families
+from servogym.chips import ParameterError, export_axes, families, import_axes, load_axes
 from servogym.chips.parker6k._profile import Parker6kProfile
 from servogym.chips.pmac._profile import Profile as PMACProfile
 from servogym.chips.pmd._profile import Profile as PMDProfile
@@ -112,3 +113,34 @@ def test_a_profile_array_that_a_cast_would_change_is_refused_naming_it(cls, extr
         cls(**{**ok, array: np.array([True, False, True])}, **extra)
     with pytest.raises(ValueError, match=rf"{cls.__name__}\.{array} must fit int64"):
         cls(**{**ok, array: np.array([0, 2**64 - 1, 0], dtype=np.uint64)}, **extra)
+
+
+# ---------------------------------------------------------------- spec-version warning
+
+
+def _old_spec_axes_json() -> str:
+    _, _, params = _family("pmac")  # per-motor sets, no shared servo period
+    doc = json.loads(export_axes({1: params, 2: params}, "json"))
+    del doc["checksum"]  # hand-edited: read without a checksum
+    doc["spec_version"] = "old-spec"
+    return json.dumps(doc)
+
+
+def test_the_spec_version_warning_points_at_the_callers_line(tmp_path):
+    text = _old_spec_axes_json()
+    with pytest.warns(UserWarning, match=r"written for spec_version 'old-spec'") as w:
+        axes = import_axes(text, "json")
+    assert len(axes) == 2
+    assert [r.filename for r in w] == [__file__]  # was servogym/chips/_axes.py
+    path = tmp_path / "axes.json"
+    path.write_text(text)
+    with pytest.warns(UserWarning, match=r"written for spec_version 'old-spec'") as w:
+        load_axes(path)
+    assert [r.filename for r in w] == [__file__]
+
+
+def test_user_stacklevel_counts_the_servogym_frames():
+    from servogym.chips import _axisfile
+
+    # Called from here (outside servogym) the warning's own caller is the user: level 1.
+    assert _axisfile.user_stacklevel() == 1
