@@ -56,6 +56,10 @@ def _parse() -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=1, help="evaluation threads per study")
     ap.add_argument("--label", default="full", help="a name stored with every line (smoke)")
+    ap.add_argument(
+        "--robust-only", action="store_true",
+        help="tune only the robust set of each scenario (the residual action's centre)",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, default=RESULTS / "oracle.jsonl")
     args = ap.parse_args()
     for name in ("points", "budget", "robust", "episodes", "workers"):
@@ -183,7 +187,7 @@ def episodes(s, policies: dict[str, Any], n: int, seed: int) -> dict[str, dict[s
 def _scenario_id(s) -> str:
     from servogym._registration import BUILTIN_FAMILIES
 
-    return f"servogym/Schedule-{BUILTIN_FAMILIES[s.family][0]}-{s.name}-v0"
+    return f"servogym/Schedule-{BUILTIN_FAMILIES[s.family][0]}-{s.name}-v1"
 
 
 def summarize(records: list[dict[str, Any]], s, points: list[float], label: str,
@@ -236,7 +240,8 @@ def main() -> None:
         points = s.operating_points(args.points)
         base = {"scenario": s.name, "budget": args.budget, "label": args.label,
                 "points": args.points}  # fmt: skip
-        for i, v in [*enumerate(points), ("robust", None)]:
+        todo = [("robust", None)] if args.robust_only else [*enumerate(points), ("robust", None)]
+        for i, v in todo:
             rec = {"kind": "set", "point": i, **base}
             if _key(rec) in done:
                 continue

@@ -12,7 +12,21 @@ registries, any family or plant added after them.
 from __future__ import annotations
 
 NAMESPACE = "servogym"
-VERSION = 0
+VERSION = 1
+"""The newest version of the ids: what ``servogym train``'s examples, the RL Zoo files and the
+docs use."""
+
+REWARD_SCALE_V1 = 0.01
+"""The ``reward_scale`` of the ``-v1`` ids (the env classes' own default, and the ``-v0``
+ids', is 1.0: raw rewards)."""
+
+VERSIONS: dict[int, dict[str, float]] = {0: {}, 1: {"reward_scale": REWARD_SCALE_V1}}
+"""Version -> the keyword arguments its ids pass on top of the env classes' defaults. ``-v0``:
+the envs as first released (rewards are minus the cost); ``-v1``: rewards times 0.01. The
+Version History of ``TuneEnv`` and ``ScheduleEnv`` (docs/envs.md) says what each changed."""
+
+SCENARIO_VERSIONS: tuple[int, ...] = (1,)
+"""The versions the gain-scheduling scenario ids exist in (they were added with ``-v1``)."""
 
 ENTRY_POINTS = {
     "Tune": "servogym._registration:make_tune_env",
@@ -52,9 +66,10 @@ def _build(kind: str, env_id: str | None, kwargs: dict):
         for key, value, want, what in given:
             if value == want:
                 continue
+            version = id_version(env_id)
             other = (
-                _id_for(kind, family, value) if what == "plant family"
-                else _id_for(kind, value, plant)
+                _id_for(kind, family, value, version) if what == "plant family"
+                else _id_for(kind, value, plant, version)
             )  # fmt: skip
             hint = f"; make {other} for that one" if other else ""
             raise ValueError(
@@ -64,12 +79,18 @@ def _build(kind: str, env_id: str | None, kwargs: dict):
     return getattr(importlib.import_module(module), name)(**kwargs)
 
 
-def _id_for(kind: str, family: str, plant: str) -> str | None:
+def _id_for(kind: str, family: str, plant: str, version: int) -> str | None:
     return next(
         (i for i, parts in _ID_PARTS.items()
-         if parts == (kind, family, plant) and i not in _SCENARIO_IDS),
+         if parts == (kind, family, plant) and i not in _SCENARIO_IDS
+         and id_version(i) == version),
         None,
     )  # fmt: skip
+
+
+def id_version(env_id: str) -> int:
+    """The version of a servogym id (``servogym/Tune-PMD-Rotary-v1`` -> 1)."""
+    return int(env_id.rsplit("-v", 1)[1])
 
 
 def make_tune_env(env_id: str | None = None, **kwargs):
@@ -98,32 +119,35 @@ def plant_id_name(plant: str) -> str:
     return "".join(part.capitalize() for part in plant.replace("_", "-").split("-"))
 
 
-def make_id(kind: str, family_id: str, plant: str) -> str:
-    """``servogym/<kind>-<family_id>-<Plant>-v0``."""
-    return f"{NAMESPACE}/{kind}-{family_id}-{plant_id_name(plant)}-v{VERSION}"
+def make_id(kind: str, family_id: str, plant: str, version: int = VERSION) -> str:
+    """``servogym/<kind>-<family_id>-<Plant>-v<version>``."""
+    return f"{NAMESPACE}/{kind}-{family_id}-{plant_id_name(plant)}-v{version}"
 
 
 def register(family: str, family_id: str, default_model: str, plant: str) -> list[str]:
-    """Register both kinds for one chip family and plant family (idempotent); return ids."""
+    """Register both kinds for one chip family and plant family, in every version of
+    :data:`VERSIONS` (idempotent); return the ids."""
     import gymnasium as gym
 
     ids = []
-    for kind, entry_point in ENTRY_POINTS.items():
-        eid = make_id(kind, family_id, plant)
-        ids.append(eid)
-        _ID_PARTS[eid] = (kind, family, plant)
-        if eid not in gym.registry:
-            gym.register(
-                id=eid,
-                entry_point=entry_point,
-                kwargs={
-                    "env_id": eid,
-                    "chip_model": default_model,
-                    "plant": plant,
-                    "family": family,
-                },
-                disable_env_checker=False,
-            )
+    for version, defaults in VERSIONS.items():
+        for kind, entry_point in ENTRY_POINTS.items():
+            eid = make_id(kind, family_id, plant, version)
+            ids.append(eid)
+            _ID_PARTS[eid] = (kind, family, plant)
+            if eid not in gym.registry:
+                gym.register(
+                    id=eid,
+                    entry_point=entry_point,
+                    kwargs={
+                        "env_id": eid,
+                        "chip_model": default_model,
+                        "plant": plant,
+                        "family": family,
+                        **defaults,
+                    },
+                    disable_env_checker=False,
+                )
     return ids
 
 
@@ -134,31 +158,36 @@ SCENARIOS: dict[str, tuple[str, str, str]] = {
     "StoredSets": ("parker6k", "6250", "rotary"),
 }
 """Gain-scheduling scenario name -> (chip family, chip model, plant family): the ids
-``servogym/Schedule-<Family>-<Name>-v0`` (:data:`servogym.envs.SCENARIOS` holds the rest;
+``servogym/Schedule-<Family>-<Name>-v1`` (:data:`servogym.envs.SCENARIOS` holds the rest;
 ``tests/envs/test_registration.py`` checks the two agree)."""
 
 
-def register_scenario(name: str, family: str, family_id: str, model: str, plant: str) -> str:
-    """Register the Schedule id of one gain-scheduling scenario (idempotent); return it."""
+def register_scenario(name: str, family: str, family_id: str, model: str, plant: str) -> list[str]:
+    """Register the Schedule ids of one gain-scheduling scenario, in every version of
+    :data:`SCENARIO_VERSIONS` (idempotent); return them."""
     import gymnasium as gym
 
-    eid = f"{NAMESPACE}/Schedule-{family_id}-{name}-v{VERSION}"
-    _ID_PARTS[eid] = ("Schedule", family, plant)
-    _SCENARIO_IDS.add(eid)
-    if eid not in gym.registry:
-        gym.register(
-            id=eid,
-            entry_point=ENTRY_POINTS["Schedule"],
-            kwargs={
-                "env_id": eid,
-                "chip_model": model,
-                "plant": plant,
-                "family": family,
-                "scenario_name": name,
-            },
-            disable_env_checker=False,
-        )
-    return eid
+    ids = []
+    for version in SCENARIO_VERSIONS:
+        eid = f"{NAMESPACE}/Schedule-{family_id}-{name}-v{version}"
+        ids.append(eid)
+        _ID_PARTS[eid] = ("Schedule", family, plant)
+        _SCENARIO_IDS.add(eid)
+        if eid not in gym.registry:
+            gym.register(
+                id=eid,
+                entry_point=ENTRY_POINTS["Schedule"],
+                kwargs={
+                    "env_id": eid,
+                    "chip_model": model,
+                    "plant": plant,
+                    "family": family,
+                    "scenario_name": name,
+                    **VERSIONS[version],
+                },
+                disable_env_checker=False,
+            )
+    return ids
 
 
 def register_builtin() -> list[str]:
@@ -170,5 +199,5 @@ def register_builtin() -> list[str]:
         for eid in register(family, family_id, model, plant)
     ]
     for name, (family, model, plant) in SCENARIOS.items():
-        ids.append(register_scenario(name, family, BUILTIN_FAMILIES[family][0], model, plant))
+        ids += register_scenario(name, family, BUILTIN_FAMILIES[family][0], model, plant)
     return ids

@@ -2,20 +2,24 @@
 
 Every id is registered here, in one place, under the ``servogym/`` namespace, one per chip
 family and plant family in the registries (:func:`servogym.chips._family.families`,
-:data:`servogym.plants.PLANTS`)::
+:data:`servogym.plants.PLANTS`) and version (:data:`VERSIONS`)::
 
-    servogym/Tune-<Family>-<Plant>-v0       servogym/Schedule-<Family>-<Plant>-v0
+    servogym/Tune-<Family>-<Plant>-v1       servogym/Schedule-<Family>-<Plant>-v1
+
+``-v1`` ids scale their rewards by 0.01 (:data:`REWARD_SCALE_V1`); the ``-v0`` ids keep the
+first release's behaviour (raw rewards). The gain-scheduling scenarios add
+``servogym/Schedule-<Family>-<Scenario>-v1``.
 
 ``<Family>`` is the chip family's ``env_name`` (or its name in capitals: ``PMD``), the env
 using the family's first model unless ``chip_model=`` names another
-(``gymnasium.make("servogym/Tune-PMD-VerticalAxis-v0", chip_model="MC58000")``);
+(``gymnasium.make("servogym/Tune-PMD-VerticalAxis-v1", chip_model="MC58000")``);
 ``<Plant>`` is the plant family in CamelCase (``VerticalAxis``). Importing this package
 registers them, and so does ``import servogym`` (cheaply: string entry points).
 
 Example:
     >>> import gymnasium as gym
     >>> import servogym
-    >>> env = gym.make("servogym/Tune-PMD-VerticalAxis-v0")
+    >>> env = gym.make("servogym/Tune-PMD-VerticalAxis-v1")
 """
 
 from __future__ import annotations
@@ -51,6 +55,9 @@ from servogym.plants import PLANTS
 
 NAMESPACE = _registration.NAMESPACE
 VERSION = _registration.VERSION
+VERSIONS = _registration.VERSIONS
+REWARD_SCALE_V1 = _registration.REWARD_SCALE_V1
+id_version = _registration.id_version
 plant_id_name = _registration.plant_id_name
 ENTRY_POINTS = _registration.ENTRY_POINTS
 
@@ -60,9 +67,10 @@ def family_id_name(family: ChipFamily) -> str:
     return getattr(family, "env_name", None) or family.name.upper()
 
 
-def env_id(kind: str, family: ChipFamily, plant: str) -> str:
-    """The registered id of an env kind (``"Tune"``, ``"Schedule"``) for a family and plant."""
-    return _registration.make_id(kind, family_id_name(family), plant)
+def env_id(kind: str, family: ChipFamily, plant: str, version: int = VERSION) -> str:
+    """The registered id of an env kind (``"Tune"``, ``"Schedule"``) for a family and plant
+    (``version``: the newest by default)."""
+    return _registration.make_id(kind, family_id_name(family), plant, version)
 
 
 def register_envs() -> list[str]:
@@ -81,10 +89,8 @@ def register_envs() -> list[str]:
     ]
     for s in SCENARIOS.values():
         fam = families()[s.family]
-        ids.append(
-            _registration.register_scenario(
-                s.name, s.family, family_id_name(fam), s.chip_model, s.plant
-            )
+        ids += _registration.register_scenario(
+            s.name, s.family, family_id_name(fam), s.chip_model, s.plant
         )
     return ids
 
@@ -124,8 +130,11 @@ __all__ = [
     "MOVE_FEATURES",
     "NAMESPACE",
     "OBS_CLIP",
+    "REWARD_SCALE_V1",
     "SCENARIOS",
     "STATE_FEATURES",
+    "VERSION",
+    "VERSIONS",
     "ActionMap",
     "PickAndPlace",
     "RawActions",
@@ -137,6 +146,7 @@ __all__ = [
     "env_id",
     "family_id_name",
     "get_scenario",
+    "id_version",
     "plant_id_name",
     "register_envs",
     "registered_ids",

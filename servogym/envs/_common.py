@@ -11,10 +11,11 @@ from servogym.chips._family import ChipFamily, get_chip
 from servogym.plants import get_plant
 from servogym.sim import Scenario
 
-DEFAULT_REWARD_SCALE = 0.01
-"""The envs' default ``reward_scale``: rewards are minus the cost times this, so a move's
-cost (about 0.01 .. 1 for a good set, 100 at the cap) gives rewards of order 0.0001 .. 1 and a
-divergence (1000 .. 2000) -10 .. -20, a range SB3's default learning rates and value
+DEFAULT_REWARD_SCALE = 1.0
+"""The env classes' default ``reward_scale``, and the ``-v0`` ids': rewards are minus the
+cost. The ``-v1`` ids pass :data:`servogym._registration.REWARD_SCALE_V1` (0.01), so a move's
+cost (about 0.01 .. 1 for a good set, 100 at the cap) gives rewards of order 0.0001 .. 1 and
+a divergence (1000 .. 2000) -10 .. -20, a range SB3's default learning rates and value
 networks handle. ``info["cost"]`` and ``info["raw_reward"]`` stay unscaled."""
 
 
@@ -29,7 +30,7 @@ def check_reward_scale(reward_scale: Any) -> float:
         or reward_scale <= 0
     ):
         raise ValueError(
-            f"reward_scale must be a finite number > 0 (default {DEFAULT_REWARD_SCALE}); got "
+            f"reward_scale must be a finite number > 0 (1.0 in -v0 ids, 0.01 in -v1); got "
             f"reward_scale={reward_scale!r}."
         )
     return float(reward_scale)

@@ -200,17 +200,17 @@ def get_scenario(name: str) -> ScheduleScenario:
 def feasibility_rows() -> list[dict[str, Any]]:
     """Every Schedule id's box and the peak torque its worst corner needs (docs/envs.md).
 
-    One row per registered Schedule id (the plant-family ids with their default cycle, and
-    the scenarios), computed by building the env (its ``need``:
-    :func:`servogym.envs._schedule.cycle_need`).
+    One row per registered Schedule id of the newest version (the plant-family ids with
+    their default cycle, and the scenarios; a ``-v0`` plant id's box is its ``-v1`` twin's),
+    computed by building the env (its ``need``: :func:`servogym.envs._schedule.cycle_need`).
     """
     import gymnasium as gym
 
-    from servogym.envs import registered_ids
+    from servogym.envs import VERSION, id_version, registered_ids
 
     rows = []
     for eid in registered_ids():
-        if not eid.split("/")[1].startswith("Schedule-"):
+        if not eid.split("/")[1].startswith("Schedule-") or id_version(eid) != VERSION:
             continue
         env = gym.make(eid).unwrapped
         rows.append(

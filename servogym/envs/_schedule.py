@@ -134,7 +134,8 @@ class ScheduleEnv(gym.Env):
     ## Rewards
 
     Minus the move's cost (``servogym.sim.move_cost``, 0 .. 100, docs/cost.md), times
-    ``reward_scale`` (default 0.01). A move that diverges ends the episode with the raw
+    ``reward_scale`` (1.0 in the ``-v0`` ids and for the class itself, 0.01 in the ``-v1``
+    ids). A move that diverges ends the episode with the raw
     reward ``-1000 * (2 - r)``, ``r`` the fraction of the episode's moves that ran (the
     diverging one counted by the fraction of its ticks). ``info["raw_reward"]`` is the
     reward before scaling, ``info["cost"]`` the move's cost.
@@ -169,16 +170,26 @@ class ScheduleEnv(gym.Env):
     | `scenario_name` | from the id | str | a gain-scheduling scenario (``SCENARIOS``) |
     | `moves` | the plant's | tuple[MoveSpec] | the moves (the first sets the positions' scale) |
     | `condition` | `False` (scenarios: `True`) | bool | observe the load and the target |
-    | `reward_scale` | 0.01 | float (1) | rewards are minus the cost times this |
+    | `reward_scale` | 1.0 (`-v1` ids: 0.01) | float (1) | rewards are minus the cost times this |
     | `center` | the scenario's or nominal set | dict (int) | zero action of `"residual"` |
     | `residual_scale` | 0.25 | float (1) | reach of a `"residual"` action (unit form) |
 
     ## Version History
 
-    * v0: Initial version; later, without changing the default behaviour of the plant ids:
-      ``reward_scale`` (default 0.01, the factor ``servogym train`` applied), the
-      ``"residual"`` and ``"stored"`` actions, ``condition``, ``moves``, the scenario ids,
-      and the refusal of a cycle the motor cannot move.
+    * v1: Rewards are scaled by 0.01 by default (``reward_scale=0.01``, the factor
+      ``servogym train`` applied itself before; ``info["raw_reward"]`` is the unscaled
+      reward). The gain-scheduling scenario ids (``Schedule-<Family>-<Scenario>-v1``) are
+      added; by default they observe the condition (``condition=True``) and act around a
+      safe set (``action_type="residual"``) or, on the 6250, choose a stored gain set
+      (``"stored"``). The plant ids' action and observation are those of v0.
+    * v0: Initial version: raw rewards (``reward_scale=1.0``). Added since, as keywords
+      whose defaults keep v0's behaviour: ``reward_scale``, the ``"residual"`` and
+      ``"stored"`` actions, ``condition``, ``moves``, ``plant_range``, ``plant_file``.
+      Changed in place, in every version, because the old defaults asked more than the
+      motor can give: the part range defaults to the parameter's default sampling range
+      (was its legal range: the arm's payload to 2.5 kg, not 5 kg), the other parameters
+      are drawn from their default sampling ranges (``PlantParam.sample_range``), and a
+      cycle the motor cannot move is refused when the env is made.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}

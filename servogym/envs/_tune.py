@@ -66,7 +66,8 @@ class TuneEnv(gym.Env):
     ## Rewards
 
     Minus the scenario's cost of the parameter set on this plant instance (docs/cost.md),
-    times ``reward_scale`` (default 0.01): the mean move cost (0 .. 100) when no move
+    times ``reward_scale`` (1.0 in the ``-v0`` ids and for the class itself, 0.01 in the
+    ``-v1`` ids): the mean move cost (0 .. 100) when no move
     diverged, ``-1000 * (2 - r)`` when one did (``r``: fraction of the evaluation's ticks that
     ran). Always finite. ``info["cost"]`` is the cost and ``info["raw_reward"]`` the reward
     before scaling.
@@ -99,12 +100,18 @@ class TuneEnv(gym.Env):
     | `privileged` | `False` | bool | also observe the hidden plant parameters |
     | `ident_params` | chip defaults | dict (int) | registers of the identification move |
     | `render_mode` | `None` | str | `"rgb_array"`: picture of the last response |
-    | `reward_scale` | 0.01 | float (1) | rewards are minus the cost times this |
+    | `reward_scale` | 1.0 (`-v1` ids: 0.01) | float (1) | rewards are minus the cost times this |
 
     ## Version History
 
-    * v0: Initial version; ``reward_scale`` (default 0.01, the factor ``servogym train``
-      applied) added later, ``info["raw_reward"]`` keeps the unscaled reward.
+    * v1: Rewards are scaled by 0.01 by default (``reward_scale=0.01``, the factor
+      ``servogym train`` applied itself before; ``info["raw_reward"]`` is the unscaled
+      reward). Action and observation are those of v0.
+    * v0: Initial version: raw rewards (``reward_scale=1.0``). Added since, as keywords
+      whose defaults keep v0's behaviour: ``reward_scale``, ``plant_range``,
+      ``plant_file``. Changed in place, in every version, because the old defaults asked
+      more than the motor can give: the plant parameters are drawn from their default
+      sampling ranges (``PlantParam.sample_range``), not always their legal ranges.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 1}

@@ -11,7 +11,7 @@ from servogym.chips import ParameterError
 from servogym.chips.pmd import PMDParams, to_json
 from servogym.cli import app
 
-ENV = "servogym/Schedule-PMD-VerticalAxis-v0"
+ENV = "servogym/Schedule-PMD-VerticalAxis-v1"
 TUNED = dict(kp=60, kd=600, ki=20, kout=6000, derivative_time=1, bias=1200)
 
 

@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from servogym.cli import app
 
-TUNE = "servogym/Tune-PMD-Rotary-v0"
+TUNE = "servogym/Tune-PMD-Rotary-v1"
 
 
 class _Payload:

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-ENV = "servogym/Tune-PMD-Rotary-v0"
+ENV = "servogym/Tune-PMD-Rotary-v1"
 
 
 ALGO_KWARGS = '{"n_steps": 16, "batch_size": 16, "n_epochs": 1}'
@@ -96,7 +96,7 @@ def test_train_never_overwrites_a_trained_run_without_resume(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
     (out / "model.zip").write_bytes(b"a model")
-    r = CliRunner().invoke(app, ["train", "--env", "servogym/Tune-PMD-Rotary-v0",
+    r = CliRunner().invoke(app, ["train", "--env", "servogym/Tune-PMD-Rotary-v1",
                                  "--timesteps", "10", "--out", str(out)])  # fmt: skip
     assert r.exit_code == 2, r.output
     assert "already holds a trained run (model.zip); pass --resume" in r.output

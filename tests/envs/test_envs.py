@@ -19,9 +19,10 @@ from servogym.chips._family import families
 from servogym.plants import PLANTS
 
 IDS = envs.registered_ids()
+"""Every registered id, every version."""
 BOX_IDS = [
     i for i in IDS
-    if not any(i.endswith(f"-{name}-v0") and s.stored_sets for name, s in envs.SCENARIOS.items())
+    if not any(f"-{name}-v" in i and s.stored_sets for name, s in envs.SCENARIOS.items())
 ]  # fmt: skip
 """The ids whose action is a Box of register entries (not the 6250's stored-set choice)."""
 
@@ -42,20 +43,24 @@ def _rollout(eid: str, seed: int, n_episodes: int = 2) -> tuple[list, list]:
     return observations, rewards
 
 
-def test_registry_has_every_kind_family_and_plant():
+def test_registry_has_every_kind_family_plant_and_version():
+    from servogym._registration import SCENARIO_VERSIONS
+
     expected = {
-        envs.env_id(kind, fam, plant)
+        envs.env_id(kind, fam, plant, version)
         for kind in ("Tune", "Schedule")
         for fam in families().values()
         for plant in PLANTS
+        for version in envs.VERSIONS
     }
     expected |= {
-        f"servogym/Schedule-{envs.family_id_name(families()[s.family])}-{name}-v0"
+        f"servogym/Schedule-{envs.family_id_name(families()[s.family])}-{name}-v{version}"
         for name, s in envs.SCENARIOS.items()
+        for version in SCENARIO_VERSIONS
     }
     assert set(IDS) == expected
-    assert "servogym/Tune-PMD-VerticalAxis-v0" in IDS
-    assert all(i.endswith("-v0") for i in IDS)
+    assert {"servogym/Tune-PMD-VerticalAxis-v0", "servogym/Tune-PMD-VerticalAxis-v1"} <= set(IDS)
+    assert sorted(envs.VERSIONS) == [0, 1] and envs.VERSION == 1
 
 
 @pytest.mark.parametrize("eid", IDS)
@@ -63,10 +68,13 @@ def test_checkers_pass(eid):
     from gymnasium.utils.env_checker import check_env as gym_check
     from stable_baselines3.common.env_checker import check_env as sb3_check
 
+    with warnings.catch_warnings():  # making a -v0 id warns that -v1 exists (Gymnasium)
+        warnings.simplefilter("ignore", DeprecationWarning)
+        rendered, plain = gym.make(eid, render_mode="rgb_array").unwrapped, gym.make(eid).unwrapped
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a checker warning fails the test
-        gym_check(gym.make(eid, render_mode="rgb_array").unwrapped)
-        sb3_check(gym.make(eid).unwrapped)
+        gym_check(rendered)
+        sb3_check(plain)
 
 
 @pytest.mark.parametrize("eid", IDS)
@@ -181,7 +189,7 @@ def test_extreme_actions_give_finite_rewards_and_observations(eid):
 
 def test_raw_integer_actions_and_fixed_registers():
     env = gym.make(
-        "servogym/Schedule-PMD-VerticalAxis-v0",
+        "servogym/Schedule-PMD-VerticalAxis-v1",
         action_type="raw",
         params=("kp", "kd", "bias"),
         fixed={"ki": 0},
@@ -202,24 +210,24 @@ def test_raw_integer_actions_and_fixed_registers():
 
 
 def test_fixing_a_register_removes_it_from_the_action():
-    env = gym.make("servogym/Tune-PMD-Rotary-v0", fixed={"kout": 20000, "bias": 0}).unwrapped
+    env = gym.make("servogym/Tune-PMD-Rotary-v1", fixed={"kout": 20000, "bias": 0}).unwrapped
     assert "kout" not in env.actions.names and env.action_space.shape == (7,)
     env.reset(seed=0)
     *_, info = env.step(env.action_space.sample())
     assert info["params"]["kout"] == 20000
     with pytest.raises(ValueError, match="either set by the action or fixed"):
-        gym.make("servogym/Tune-PMD-Rotary-v0", params=("kp",), fixed={"kp": 1})
+        gym.make("servogym/Tune-PMD-Rotary-v1", params=("kp",), fixed={"kp": 1})
 
 
 def test_other_model_of_the_family_and_a_wrong_family():
-    env = gym.make("servogym/Tune-PMD-VerticalAxis-v0", chip_model="MC58000").unwrapped
+    env = gym.make("servogym/Tune-PMD-VerticalAxis-v1", chip_model="MC58000").unwrapped
     assert env.scenario.chip_model == "MC58000"
     with pytest.raises(Exception, match="unknown chip model 'MC9999'"):
-        gym.make("servogym/Tune-PMD-VerticalAxis-v0", chip_model="MC9999")
+        gym.make("servogym/Tune-PMD-VerticalAxis-v1", chip_model="MC9999")
 
 
 def test_reset_options_set_the_plant_and_privileged_observation_shows_it():
-    env = gym.make("servogym/Tune-PMD-VerticalAxis-v0", privileged=True).unwrapped
+    env = gym.make("servogym/Tune-PMD-VerticalAxis-v1", privileged=True).unwrapped
     assert env.observation_space.shape == (12 + len(PLANTS["vertical-axis"].randomised()),)
     obs, info = env.reset(seed=0, options={"plant_values": {"payload_kg": 10.0}})
     assert info["plant_values"]["payload_kg"] == 10.0
@@ -231,7 +239,7 @@ def test_reset_options_set_the_plant_and_privileged_observation_shows_it():
 
 
 def test_schedule_payload_follows_the_pick_and_place_cycle():
-    env = gym.make("servogym/Schedule-PMD-VerticalAxis-v0").unwrapped
+    env = gym.make("servogym/Schedule-PMD-VerticalAxis-v1").unwrapped
     _obs, info = env.reset(seed=1)
     payloads = [info["payload_kg"]]
     defaults = env.actions.from_values({})
@@ -244,7 +252,7 @@ def test_schedule_payload_follows_the_pick_and_place_cycle():
 
 
 def test_render_gives_a_picture_of_the_last_response():
-    for eid in ("servogym/Tune-PMD-Arm-v0", "servogym/Schedule-PMD-Arm-v0"):
+    for eid in ("servogym/Tune-PMD-Arm-v1", "servogym/Schedule-PMD-Arm-v1"):
         env = gym.make(eid, render_mode="rgb_array")
         env.reset(seed=0)
         env.step(env.unwrapped.actions.from_values({}))
@@ -256,7 +264,7 @@ def test_render_gives_a_picture_of_the_last_response():
 def test_make_in_a_fresh_process_by_module_prefix():
     code = (
         "import gymnasium as gym;"
-        "e = gym.make('servogym.envs:servogym/Tune-PMD-Rotary-v0'); print(e.reset(seed=0)[0][0])"
+        "e = gym.make('servogym.envs:servogym/Tune-PMD-Rotary-v1'); print(e.reset(seed=0)[0][0])"
     )
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
 
@@ -292,8 +300,8 @@ def test_identification_with_a_given_parameter_set():
     from servogym.agents import nominal_set
 
     tuned = nominal_set("pmd", "vertical-axis")
-    env = gym.make("servogym/Tune-PMD-VerticalAxis-v0", ident_params=tuned).unwrapped
-    default = gym.make("servogym/Tune-PMD-VerticalAxis-v0").unwrapped
+    env = gym.make("servogym/Tune-PMD-VerticalAxis-v1", ident_params=tuned).unwrapped
+    default = gym.make("servogym/Tune-PMD-VerticalAxis-v1").unwrapped
     obs, _ = env.reset(seed=0)
     obs_default, _ = default.reset(seed=0)
     assert env.ident_params.kp == tuned["kp"]

@@ -21,7 +21,7 @@ SETS = (
 
 def make(seed_params=SETS):
     params = Parker6kParams(model="6250", sgset=seed_params)
-    return gym.make("servogym/Schedule-Parker6K-Rotary-v0", action_type=StoredSetActions(params))
+    return gym.make("servogym/Schedule-Parker6K-Rotary-v1", action_type=StoredSetActions(params))
 
 
 def test_discrete_stored_set_action_passes_both_checkers():

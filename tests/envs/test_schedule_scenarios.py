@@ -20,7 +20,7 @@ from servogym.plants import PEAK_HEADROOM, MotorFeasibilityError, get_plant
 ROOT = Path(__file__).resolve().parents[2]
 SCHEDULE_IDS = [i for i in envs.registered_ids() if i.split("/")[1].startswith("Schedule-")]
 SCENARIO_IDS = {
-    name: f"servogym/Schedule-{_registration.BUILTIN_FAMILIES[s.family][0]}-{name}-v0"
+    name: f"servogym/Schedule-{_registration.BUILTIN_FAMILIES[s.family][0]}-{name}-v1"
     for name, s in SCENARIOS.items()
 }
 
@@ -46,7 +46,7 @@ def test_every_schedule_box_is_movable_by_its_motor(eid):
 def test_a_cycle_the_motor_cannot_move_is_refused_in_one_line():
     with pytest.raises(MotorFeasibilityError, match=r"load_inertia_kgm2=0\.003 .*cycle") as e:
         gym.make(
-            "servogym/Schedule-PMD-Rotary-v0",
+            "servogym/Schedule-PMD-Rotary-v1",
             cycle=PickAndPlace("load_inertia_kgm2", part=(1e-3, 3e-3)),
         )
     assert "\n" not in str(e.value)
@@ -93,7 +93,7 @@ def test_the_unit_box_centre_diverges_where_the_residual_one_does_not():
 
 
 def test_residual_actions_reach_and_refusals():
-    env = gym.make("servogym/Schedule-PMD-Arm-v0", action_type="residual").unwrapped
+    env = gym.make("servogym/Schedule-PMD-Arm-v1", action_type="residual").unwrapped
     from servogym.agents import nominal_set
 
     center = nominal_set("pmd", "arm")
@@ -105,9 +105,9 @@ def test_residual_actions_reach_and_refusals():
     spec = env.actions.specs[0]
     assert spec.to_unit(kp) == pytest.approx(spec.to_unit(center["kp"]) + 0.25, abs=1e-3)
     with pytest.raises(ValueError, match=r"0 < residual_scale <= 2 .*got residual_scale=3"):
-        gym.make("servogym/Schedule-PMD-Arm-v0", action_type="residual", residual_scale=3)
+        gym.make("servogym/Schedule-PMD-Arm-v1", action_type="residual", residual_scale=3)
     with pytest.raises(ValueError, match="action_type='residual' needs center="):
-        gym.make("servogym/Schedule-PMAC-Arm-v0", action_type="residual")
+        gym.make("servogym/Schedule-PMAC-Arm-v1", action_type="residual")
     with pytest.raises(ValueError, match=r"action\[1\] \(ki\) must be a finite number"):
         bad = np.zeros(env.action_space.shape, np.float32)
         bad[1] = np.nan
@@ -127,16 +127,17 @@ def test_the_condition_is_observed():
         assert obs[i_load] == pytest.approx(2 * (math.log(load) - lo) / (hi - lo) - 1)
         assert obs[i_target] == pytest.approx(env._targets[k])
         obs, *_ = env.step(zero)
-    plain = gym.make("servogym/Schedule-PMD-Arm-v0").unwrapped
+    plain = gym.make("servogym/Schedule-PMD-Arm-v1").unwrapped
     assert plain.observation_space.shape[0] == env.observation_space.shape[0] - 2
 
 
 def test_reward_scale_is_the_envs_and_documented():
-    assert envs.DEFAULT_REWARD_SCALE == 0.01
+    assert envs.DEFAULT_REWARD_SCALE == 1.0  # the classes' and the -v0 ids'
+    assert envs.REWARD_SCALE_V1 == 0.01
     from servogym.agents import DEFAULT_REWARD_SCALE
 
-    assert DEFAULT_REWARD_SCALE == envs.DEFAULT_REWARD_SCALE
-    for eid in ("servogym/Schedule-PMD-Rotary-v0", "servogym/Tune-PMD-Rotary-v0"):
+    assert DEFAULT_REWARD_SCALE == envs.REWARD_SCALE_V1  # what train passes to every id
+    for eid in ("servogym/Schedule-PMD-Rotary-v1", "servogym/Tune-PMD-Rotary-v1"):
         rewards = {}
         for scale in (0.01, 1.0, 0.5):
             env = gym.make(eid, reward_scale=scale).unwrapped
@@ -148,7 +149,7 @@ def test_reward_scale_is_the_envs_and_documented():
         assert rewards[0.01] == gym.make(eid).unwrapped.reward_scale * rewards[1.0]
     for bad in (0, -1, float("nan"), True, "0.1"):
         with pytest.raises(ValueError, match=r"reward_scale must be a finite number > 0"):
-            gym.make("servogym/Tune-PMD-Rotary-v0", reward_scale=bad)
+            gym.make("servogym/Tune-PMD-Rotary-v1", reward_scale=bad)
 
 
 def test_stored_sets_action_selects_sgset_per_move():
@@ -168,7 +169,7 @@ def test_stored_sets_action_selects_sgset_per_move():
 
 def test_unknown_scenario_name_suggests_the_close_one():
     with pytest.raises(ValueError, match="Did you mean RotaryInertia"):
-        gym.make("servogym/Schedule-PMD-Rotary-v0", scenario_name="RotaryInertie")
+        gym.make("servogym/Schedule-PMD-Rotary-v1", scenario_name="RotaryInertie")
 
 
 def test_docs_feasibility_table_is_the_scripts_output():
