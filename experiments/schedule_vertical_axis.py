@@ -1,6 +1,6 @@
 """Gain scheduling on the vertical axis: a trained policy against the best fixed parameter set.
 
-The env is ``servogym/Schedule-PMD-VerticalAxis-v0`` (PMD MC2100 on a ball-screw vertical
+The env is ``servogym/Schedule-PMD-VerticalAxis-v1`` (PMD MC2100 on a ball-screw vertical
 axis): 8-move pick-and-place episodes, the payload switching between 0.5 kg (empty gripper)
 and a part drawn log-uniformly in 0.5 .. 10 kg once per episode (up to 20x), friction drawn
 over half its legal range. Per move the agent sets kp, ki, kd, kvff, kaff,
@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-ENV_ID = "servogym/Schedule-PMD-VerticalAxis-v0"
+ENV_ID = "servogym/Schedule-PMD-VerticalAxis-v1"
 ENV_KWARGS = {
     "sample_scale": 0.5,
     "n_moves": 8,
@@ -141,9 +141,17 @@ def evaluate(model_path: Path, fixed_values: dict, n_episodes: int) -> dict:
         ),
         "chip defaults": ConstantPolicy(env.unwrapped.actions.from_values({})),
     }
+    # the policy acts in its run's env (the env's residual action around the fixed set); the
+    # constant baselines in the unit box, whose registers are exactly theirs
+    import gymnasium as gym
+
+    from servogym.agents._train import read_config, run_env_kwargs
+
+    run_env = gym.make(ENV_ID, **run_env_kwargs(read_config(model_path.parent / "config.json")))
     outcomes = {}
     for name, policy in policies.items():
-        outcomes[name] = [run_episodes(env, policy, [s])[0] for s in track(seeds, description=name)]
+        e = run_env if name == "SAC policy (scheduled)" else env
+        outcomes[name] = [run_episodes(e, policy, [s])[0] for s in track(seeds, description=name)]
     names = list(policies)
     return {
         "seeds": [seeds[0], seeds[-1]],
@@ -219,7 +227,7 @@ def main(argv: list[str] | None = None) -> None:
         env_kwargs=ENV_KWARGS,
         algo_kwargs=SAC_KWARGS,
         wall_time_s=args.train_minutes * 60,
-        residual={"center": fixed["action"], "scale": RESIDUAL_SCALE},
+        residual={"center": fixed["values"], "scale": RESIDUAL_SCALE},
     )
     training = json.loads((args.out / "config.json").read_text())
     evaluation = evaluate(model_path, fixed["values"], args.episodes)

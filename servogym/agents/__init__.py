@@ -16,10 +16,10 @@ from servogym.agents._evaluate import (
 from servogym.agents._train import (
     ALGOS,
     DEFAULT_REWARD_SCALE,
-    ResidualAction,
     load_model,
     load_policy,
     make_env,
+    residual_env_kwargs,
     train,
 )
 
@@ -30,13 +30,13 @@ __all__ = [
     "ConstantPolicy",
     "EpisodeOutcome",
     "ModelPolicy",
-    "ResidualAction",
     "baseline_policies",
     "load_model",
     "load_policy",
     "make_env",
     "nominal_set",
     "paired_difference",
+    "residual_env_kwargs",
     "run_episodes",
     "summarize",
     "train",

@@ -44,7 +44,7 @@ def _check_env_id(env: str) -> None:
 
 
 def train_command(
-    env: Annotated[str, typer.Option(help="Env id, e.g. servogym/Tune-PMD-VerticalAxis-v0.")],
+    env: Annotated[str, typer.Option(help="Env id, e.g. servogym/Tune-PMD-VerticalAxis-v1.")],
     algo: Annotated[str, typer.Option(help="ppo, sac or td3.")] = "ppo",
     timesteps: Annotated[int, typer.Option(min=1, help="Env steps to train for.")] = 100_000,
     seed: Annotated[int, typer.Option(help="Seed of the agent and the envs.")] = 0,
@@ -335,14 +335,15 @@ def evaluate_command(
             _fail(f"--model {str(model)!r} is not a regular file; give a run's model.zip.")
         cfg = model.parent / "config.json"
         if cfg.exists():
-            from servogym.agents._train import read_config
+            from servogym.agents._train import read_config, run_env_kwargs
 
             try:
                 config = read_config(cfg, f"--model {str(model)!r}")
+                env = env or config["env_id"]
+                # the run's env: its keywords and, if it acted around a set, that action
+                kwargs.update(run_env_kwargs({**config, "env_id": env}))
             except ValueError as exc:
                 _fail(str(exc))
-            env = env or config["env_id"]
-            kwargs.update(config["env_kwargs"])
     if env is None:
         _fail("give --env, or a --model whose run directory has a config.json")
     _check_env_id(env)
@@ -354,6 +355,7 @@ def evaluate_command(
     extra = {}
     if fixed is not None:
         extra["best fixed set"] = _fixed_values(fixed, e.unwrapped.scenario.chip_model)
+    base_env = _baseline_env(env, kwargs, e)
     policies: dict[str, Any] = {}
     if model is not None:
         from servogym.agents._train import load_policy
@@ -363,9 +365,10 @@ def evaluate_command(
         except ValueError as exc:
             _fail(str(exc))
     try:
-        policies.update(baseline_policies(e, extra))
+        baselines = baseline_policies(base_env, extra)
     except ValueError as exc:
         _fail(f"--fixed {str(fixed)!r}: {exc}")
+    policies.update(baselines)
     seeds = range(seed, seed + episodes)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -378,7 +381,8 @@ def evaluate_command(
         task = progress.add_task("episodes", total=len(policies) * episodes)
         for name, p in policies.items():
             progress.update(task, description=f"evaluate {name}")
-            outcomes = run_episodes(e, p, seeds, on_episode=lambda: progress.advance(task))
+            run_env = base_env if name in baselines else e
+            outcomes = run_episodes(run_env, p, seeds, on_episode=lambda: progress.advance(task))
             results[name] = summarize(outcomes)
     if as_json:
         typer.echo(json.dumps({"env": env, "seeds": [seed, seed + episodes - 1], **results}))
@@ -393,6 +397,21 @@ def evaluate_command(
             f"{s['mean_step_cost']:.2f}",
         )  # fmt: skip
     console.print(table)
+
+
+def _baseline_env(env_id: str, kwargs: dict[str, Any], env: Any) -> Any:
+    """The env the constant baselines run on: ``env`` itself, or, when its action is a
+    residual around a set (which reaches only sets near it), the same env with the unit box
+    of registers, so a baseline runs exactly the registers it names. The action map draws
+    nothing, so both give the same episodes for a seed."""
+    import gymnasium as gym
+
+    from servogym.envs import ResidualActions
+
+    if not isinstance(env.unwrapped.actions, ResidualActions):
+        return env
+    unit = {k: v for k, v in kwargs.items() if k not in ("center", "residual_scale")}
+    return gym.make(env_id, **{**unit, "action_type": "unit"})
 
 
 def _fixed_values(path: Path, chip_model: str) -> dict[str, Any]:

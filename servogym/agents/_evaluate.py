@@ -43,18 +43,15 @@ class ConstantPolicy:
 
 
 class ModelPolicy:
-    """An SB3 model's deterministic action (mapped from residual form when trained so)."""
+    """An SB3 model's deterministic action, in the action space of the env it trained on
+    (a run that acted around a set ran the env's own residual action:
+    ``servogym.agents._train.run_env_kwargs`` rebuilds that env)."""
 
-    def __init__(self, model: Any, residual: Mapping[str, Any] | None = None) -> None:
+    def __init__(self, model: Any) -> None:
         self.model = model
-        self.residual = residual
 
     def __call__(self, obs: np.ndarray) -> Any:
         action, _ = self.model.predict(obs, deterministic=True)
-        if self.residual is not None:
-            from servogym.agents._train import residual_to_absolute
-
-            action = residual_to_absolute(action, self.residual)
         return action
 
 

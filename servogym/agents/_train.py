@@ -14,12 +14,15 @@ from typing import Any
 
 import gymnasium as gym
 
+from servogym._registration import REWARD_SCALE_V1
+
 ALGOS = ("ppo", "sac", "td3")
 """Algorithms ``servogym train`` offers."""
 
-DEFAULT_REWARD_SCALE = 0.01
-"""The envs' default ``reward_scale`` (``servogym.envs.DEFAULT_REWARD_SCALE``, repeated here
-so that importing the agents stays light; a test checks the two agree)."""
+DEFAULT_REWARD_SCALE = REWARD_SCALE_V1
+"""``train``'s reward scale unless one is given (0.01): passed to the envs of every id as
+their ``reward_scale``, so the ``-v1`` ids (whose own default it is) and the ``-v0`` ids
+(raw rewards by default) train on the same scale, scaled once, by the env."""
 
 
 def _algo_class(algo: str):
@@ -41,14 +44,14 @@ def make_env(
     """A function building one env (picklable, for subprocess vector envs).
 
     ``reward_scale`` is passed to the env as its ``reward_scale`` keyword (``None``: the
-    env's own, from ``env_kwargs`` or its default 0.01); the env scales its rewards, so
-    nothing is scaled twice. ``residual`` (``{"center": [...], "scale": s}``) wraps it in
-    :class:`ResidualAction`.
+    env's own, from ``env_kwargs`` or its id's default); the env scales its rewards, so
+    nothing is scaled twice. ``residual`` (``{"center": ..., "scale": s}``) makes the env
+    act around a set with its own residual action (:func:`residual_env_kwargs`).
     """
-    kwargs = dict(env_kwargs or {})
+    kwargs = residual_env_kwargs(env_id, env_kwargs, residual)
     if reward_scale is not None:
         kwargs["reward_scale"] = reward_scale
-    return _EnvFactory(env_id, kwargs, residual)
+    return _EnvFactory(env_id, kwargs)
 
 
 def effective_reward_scale(
@@ -67,44 +70,61 @@ def effective_reward_scale(
     return DEFAULT_REWARD_SCALE if scale is None else scale
 
 
-def residual_to_absolute(action: Any, residual: Mapping[str, Any]) -> Any:
-    """``clip(center + scale * action, -1, 1)``: a residual action in the env's own box."""
+def residual_env_kwargs(
+    env_id: str, env_kwargs: Mapping[str, Any] | None, residual: Mapping[str, Any] | None
+) -> dict[str, Any]:
+    """The env keyword arguments that make it act around a set: ``train``'s ``residual``.
+
+    ``residual`` is ``{"center": ..., "scale": s}``: the env's own residual action
+    (``action_type="residual"``, ``center``, ``residual_scale``:
+    :class:`servogym.envs.ResidualActions`) maps the agent's actions, so there is one
+    implementation. ``center`` is the set's register values (a dict), or, as run folders
+    saved before wrote it, the unit-form action of the set (a list), taken as the register
+    values it stands for. ``None``: ``env_kwargs`` unchanged.
+
+    Raises:
+        ValueError: when the env already acts around a set (the scenario ids, or
+            ``action_type="residual"`` in ``env_kwargs``: a residual on it would stack on
+            the env's own; give ``center``/``residual_scale`` as env keywords instead), or
+            when its action is not the unit box of registers (raw integers, stored sets).
+    """
+    kwargs = dict(env_kwargs or {})
+    if residual is None:
+        return kwargs
     import numpy as np
 
-    center = np.asarray(residual["center"], dtype=np.float32)
-    a = center + np.float32(residual["scale"]) * np.asarray(action, dtype=np.float32)
-    return np.clip(a, -1.0, 1.0).astype(np.float32)
+    from servogym.envs import ResidualActions, UnitActions
 
-
-class ResidualAction(gym.ActionWrapper):
-    """The agent acts around a fixed parameter set: ``center + scale * action``, clipped.
-
-    Zero action is the ``center`` set (e.g. the best fixed set); an agent that starts near
-    zero starts from it and learns only where scheduling pays.
-
-    Args:
-        env: An env with a Box action space in [-1, 1].
-        center: The unit-form action of the fixed set (``actions.from_values(...)``).
-        scale: How far the agent may move from it, in unit-form units.
-    """
-
-    def __init__(self, env: gym.Env, center: Any, scale: float) -> None:
-        super().__init__(env)
-        self.residual = {"center": [float(c) for c in center], "scale": float(scale)}
-
-    def action(self, action: Any) -> Any:
-        return residual_to_absolute(action, self.residual)
+    shown = f"residual={dict(residual)!r:.120}"
+    env = gym.make(env_id, **kwargs)
+    try:
+        actions = env.unwrapped.actions
+        if isinstance(actions, ResidualActions):
+            raise ValueError(
+                f"{shown}: {env_id} already acts around a safe set (action_type='residual', "
+                f"center={actions.center_values}, residual_scale={actions.scale}); a residual "
+                f"on it would stack on the env's own. Give the set and the reach as env "
+                f"keywords instead: env_kwargs center={{...}}, residual_scale=s."
+            )
+        if not isinstance(actions, UnitActions):
+            raise ValueError(
+                f"{shown}: acting around a set needs an env whose action is the unit box of "
+                f"registers (action_type='unit'); {env_id} with env_kwargs {kwargs} has "
+                f"{type(actions).__name__} ({env.action_space})."
+            )
+        center = residual["center"]
+        if not isinstance(center, Mapping):  # the unit-form action of the set
+            values = actions.to_values(np.asarray(center, dtype=np.float64))
+            center = {name: values[name] for name in actions.names}
+    finally:
+        env.close()
+    return {**kwargs, "action_type": "residual", "center": dict(center),
+            "residual_scale": float(residual["scale"])}  # fmt: skip
 
 
 class _EnvFactory:
-    def __init__(
-        self,
-        env_id: str,
-        env_kwargs: dict[str, Any],
-        residual: Mapping[str, Any] | None = None,
-    ) -> None:
+    def __init__(self, env_id: str, env_kwargs: dict[str, Any]) -> None:
         self.env_id, self.env_kwargs = env_id, env_kwargs
-        self.residual = None if residual is None else dict(residual)
 
     def __call__(self) -> gym.Env:
         import multiprocessing
@@ -121,10 +141,7 @@ class _EnvFactory:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
             signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
-        env = Monitor(gym.make(self.env_id, **self.env_kwargs))
-        if self.residual is not None:
-            env = ResidualAction(env, self.residual["center"], self.residual["scale"])
-        return env
+        return Monitor(gym.make(self.env_id, **self.env_kwargs))
 
 
 def set_torch_threads(n: int = 1) -> None:
@@ -274,7 +291,7 @@ def train(
     the env for evaluation).
 
     Args:
-        env_id: A registered id (``servogym/Schedule-PMD-VerticalAxis-v0``).
+        env_id: A registered id (``servogym/Schedule-PMD-VerticalAxis-v1``).
         algo: ``"ppo"``, ``"sac"`` or ``"td3"``.
         timesteps: Env steps to train for (over all envs).
         seed: Seed of the agent and of the envs (env ``i`` gets ``seed + i``).
@@ -283,11 +300,12 @@ def train(
         env_kwargs: Keyword arguments of ``gymnasium.make``.
         algo_kwargs: Keyword arguments of the SB3 algorithm.
         reward_scale: The envs' ``reward_scale`` (they scale their own rewards; evaluation
-            reports raw ones); ``None``: ``env_kwargs["reward_scale"]``, else the envs'
-            default :data:`DEFAULT_REWARD_SCALE`.
-        residual: ``{"center": [...], "scale": s}``: the agent acts around a fixed set
-            (:class:`ResidualAction`); saved in ``config.json`` so :func:`load_policy` maps
-            the model's actions back.
+            reports raw ones); ``None``: ``env_kwargs["reward_scale"]``, else
+            :data:`DEFAULT_REWARD_SCALE` (0.01), passed to the envs of every id version.
+        residual: ``{"center": {register: value}, "scale": s}``: the agent acts around a
+            fixed set through the env's own residual action (:func:`residual_env_kwargs`;
+            refused on an env that acts around a set already); saved in ``config.json``
+            so that :func:`load_model` and ``servogym evaluate`` rebuild that env.
         checkpoint_every: Every this many env steps, save a checkpoint in
             ``checkpoints/`` and the model as ``model.zip`` with its ``config.json``.
         wall_time_s: Stop early after this much wall time (s).
@@ -315,11 +333,9 @@ def train(
     set_torch_threads(torch_threads)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    run_kwargs = residual_env_kwargs(env_id, env_kwargs, residual)  # refuses before any work
     if residual is not None:
-        residual = {
-            "center": [float(c) for c in residual["center"]],
-            "scale": float(residual["scale"]),
-        }
+        residual = {"center": run_kwargs["center"], "scale": run_kwargs["residual_scale"]}
     trained = 0
     if resume:
         trained = check_resume(out, env_id, algo, seed, n_envs, env_kwargs, algo_kwargs)
@@ -329,7 +345,7 @@ def train(
                 f"--timesteps {timesteps}; give --timesteps > {trained} to train further."
             )
     scale = effective_reward_scale(env_kwargs, reward_scale)
-    factories = [make_env(env_id, env_kwargs, reward_scale, residual) for _ in range(n_envs)]
+    factories = [_EnvFactory(env_id, {**run_kwargs, "reward_scale": scale}) for _ in range(n_envs)]
     vec_cls = SubprocVecEnv if subprocess and n_envs > 1 else DummyVecEnv
     venv = vec_cls(factories)
     venv.seed(seed + trained)
@@ -459,8 +475,9 @@ def read_config(path: str | Path, what: str = "--model") -> dict[str, Any]:
         ("env_id", lambda v: isinstance(v, str) and bool(v), "an env id"),
         ("env_kwargs", lambda v: isinstance(v, dict), "a JSON object"),
         ("algo_kwargs", lambda v: isinstance(v, dict), "a JSON object"),
-        ("residual", lambda v: v is None or (isinstance(v, dict) and {"center", "scale"} <= set(v)),
-         "null or an object with center and scale"),
+        ("residual", lambda v: v is None or (isinstance(v, dict) and {"center", "scale"} <= set(v)
+         and isinstance(v["center"], dict | list)),
+         "null or an object with center (register values, or a unit-form list) and scale"),
     )  # fmt: skip
     for key, ok, rule in checks:
         if key not in config or not ok(config[key]):
@@ -479,7 +496,7 @@ def load_model(path: str | Path):
     class), so a crafted ``model.zip`` runs code. Here only the weights are read, with
     ``torch.load(weights_only=True)`` (tensors and plain containers, nothing else); the
     model is rebuilt from the run's ``config.json`` (algorithm, env id and keyword
-    arguments, residual map: JSON), and the env gives the spaces.
+    arguments, residual set: JSON), and the env gives the spaces.
 
     Raises:
         UnsafeModelError: if the run folder has no ``config.json``, the zip holds no
@@ -538,11 +555,15 @@ def load_model(path: str | Path):
     return model
 
 
+def run_env_kwargs(config: Mapping[str, Any]) -> dict[str, Any]:
+    """The env keyword arguments a run trained with: its ``env_kwargs`` and, when it acted
+    around a set, the residual action's (:func:`residual_env_kwargs`). What
+    ``servogym evaluate`` builds the policy's env with."""
+    return residual_env_kwargs(config["env_id"], config.get("env_kwargs"), config.get("residual"))
+
+
 def load_policy(path: str | Path):
-    """A saved model as a policy of the plain env (residual actions mapped back)."""
+    """A saved model as a policy of its run's env (:func:`run_env_kwargs`)."""
     from servogym.agents._evaluate import ModelPolicy
 
-    path = Path(path)
-    cfg = path.parent / "config.json"
-    residual = read_config(cfg)["residual"] if cfg.exists() else None
-    return ModelPolicy(load_model(path), residual)
+    return ModelPolicy(load_model(path))

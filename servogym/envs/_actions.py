@@ -145,21 +145,33 @@ class UnitActions:
             )
         return a
 
-    def to_values(self, action: Any) -> dict[str, int]:
-        """Register values of ``action``: the fixed ones, then one per action entry.
+    def checked(self, action: Any) -> np.ndarray:
+        """``action`` as a float64 array, after checking it (the one check of every Box
+        action map: unit and residual).
 
         Raises:
-            ValueError: for a wrong shape, or an entry that is NaN, infinite or outside
-                [-1, 1]; the message names the index, the parameter and the value.
+            ValueError: for a wrong shape or a non-numeric action, or an entry that is NaN,
+                infinite or outside [-1, 1]; the message names the index, the parameter and
+                the value.
         """
         a = self._array(action)
-        values = dict(self.fixed)
         for i, (spec, u) in enumerate(zip(self.specs, a, strict=True)):
             if not (math.isfinite(u) and -1.0 <= u <= 1.0):
                 raise ValueError(
                     f"action[{i}] ({spec.name}) must be a finite number in [-1, 1]; "
                     f"got action[{i}]={u!r}."
                 )
+        return a
+
+    def to_values(self, action: Any) -> dict[str, int]:
+        """Register values of ``action``: the fixed ones, then one per action entry.
+
+        Raises:
+            ValueError: as :meth:`checked`.
+        """
+        a = self.checked(action)
+        values = dict(self.fixed)
+        for spec, u in zip(self.specs, a, strict=True):
             values[spec.name] = spec.from_unit(float(u))
         return values
 
@@ -292,15 +304,9 @@ class ResidualActions:
         """The unit-form action of the underlying :class:`UnitActions` (validated, clipped).
 
         Raises:
-            ValueError: as :meth:`UnitActions.to_values` (shape, NaN, outside [-1, 1]).
+            ValueError: as :meth:`UnitActions.checked` (shape, NaN, outside [-1, 1]).
         """
-        a = self.unit._array(action)
-        for i, (spec, u) in enumerate(zip(self.specs, a, strict=True)):
-            if not (math.isfinite(u) and -1.0 <= u <= 1.0):
-                raise ValueError(
-                    f"action[{i}] ({spec.name}) must be a finite number in [-1, 1]; "
-                    f"got action[{i}]={u!r}."
-                )
+        a = self.unit.checked(action)
         return np.clip(self.center + self.scale * a, -1.0, 1.0)
 
     def to_values(self, action: Any) -> dict[str, int]:

@@ -24,8 +24,8 @@ from servogym.agents import (
 )
 from servogym.agents._cli import evaluate_command, train_command
 
-TUNE = "servogym/Tune-PMD-Rotary-v0"
-SCHEDULE = "servogym/Schedule-PMD-VerticalAxis-v0"
+TUNE = "servogym/Tune-PMD-Rotary-v1"
+SCHEDULE = "servogym/Schedule-PMD-VerticalAxis-v1"
 
 
 def _app() -> typer.Typer:
@@ -125,9 +125,9 @@ def test_cli_train_then_evaluate(tmp_path):
 
 
 def test_cli_rejects_a_mistyped_env_id_with_suggestions():
-    res = CliRunner().invoke(_app(), ["evaluate", "--env", "servogym/Tune-PMD-Rotry-v0"])
+    res = CliRunner().invoke(_app(), ["evaluate", "--env", "servogym/Tune-PMD-Rotry-v1"])
     assert res.exit_code == 2
-    assert "Did you mean" in res.output and "servogym/Tune-PMD-Rotary-v0" in res.output
+    assert "Did you mean" in res.output and "servogym/Tune-PMD-Rotary-v1" in res.output
 
 
 @pytest.mark.parametrize("key", sorted(__import__("servogym.agents").agents.NOMINAL_SETS))
@@ -144,24 +144,101 @@ def test_hand_tuned_nominal_sets_beat_the_defaults_on_the_nominal_plant(key):
     assert tuned < 0.5 * ev.evaluate(sc.default_params()).cost
 
 
-def test_residual_actions_act_around_a_fixed_set(tmp_path):
-    from servogym.agents import ResidualAction, load_policy
+def test_train_residual_is_the_envs_own_residual_action(tmp_path):
+    from servogym.agents import load_policy, residual_env_kwargs
+    from servogym.agents._train import run_env_kwargs
+    from servogym.envs import ResidualActions
 
-    env = gym.make(SCHEDULE, n_moves=2)
-    center = env.unwrapped.actions.from_values({"kp": 300, "kd": 1000})
-    wrapped = ResidualAction(env, center, 0.3)
-    np.testing.assert_allclose(wrapped.action(np.zeros_like(center)), center, atol=1e-6)
-    assert (wrapped.action(np.full_like(center, 1.0)) <= 1.0).all()
-    wrapped.reset(seed=0)
-    *_, info = wrapped.step(np.zeros_like(center))
+    values = {"kp": 300, "kd": 1000}
+    kw = residual_env_kwargs(SCHEDULE, {"n_moves": 2}, {"center": values, "scale": 0.3})
+    assert kw == {"n_moves": 2, "action_type": "residual", "center": values,
+                  "residual_scale": 0.3}  # fmt: skip
+    env = gym.make(SCHEDULE, **kw)
+    assert isinstance(env.unwrapped.actions, ResidualActions)
+    env.reset(seed=0)
+    *_, info = env.step(np.zeros(env.action_space.shape, np.float32))
     assert info["params"]["kp"] == 300 and info["params"]["kd"] == 1000
     path = train(
         SCHEDULE, "sac", 16, out=tmp_path, n_envs=1, subprocess=False, progress_bar=False,
         env_kwargs={"n_moves": 2}, algo_kwargs={"learning_starts": 8},
-        residual={"center": center, "scale": 0.3},
+        residual={"center": values, "scale": 0.3},
     )  # fmt: skip
+    config = json.loads((tmp_path / "config.json").read_text())
+    assert config["residual"] == {"center": values, "scale": 0.3}
+    assert config["env_kwargs"] == {"n_moves": 2}  # what --resume compares
     policy = load_policy(path)
-    obs, _ = env.reset(seed=0)
+    run_env = gym.make(SCHEDULE, **run_env_kwargs(config)).unwrapped
+    obs, _ = run_env.reset(seed=0)
     a = policy(obs)
-    assert env.action_space.contains(a)
-    assert np.abs(a - center).max() <= 0.3 + 1e-6
+    assert run_env.action_space.contains(a)
+    kp = run_env.actions.specs[run_env.actions.names.index("kp")]
+    got = run_env.actions.to_values(a)["kp"]  # one mapping: within the reach of the centre
+    assert abs(kp.to_unit(got) - kp.to_unit(300)) <= 0.3 + 1e-3
+
+
+def test_a_run_folder_with_a_unit_form_centre_rebuilds_the_same_residual_env():
+    from servogym.agents import residual_env_kwargs
+
+    plain = gym.make(SCHEDULE).unwrapped
+    unit_centre = plain.actions.from_values({"kp": 300, "kd": 1000}).tolist()
+    kw = residual_env_kwargs(SCHEDULE, {}, {"center": unit_centre, "scale": 0.3})
+    defaults = plain.actions.to_values(np.asarray(unit_centre))
+    assert kw["center"] == {n: defaults[n] for n in plain.actions.names}
+    assert kw["center"]["kp"] == 300 and kw["residual_scale"] == 0.3
+
+
+def test_train_residual_on_an_env_that_acts_around_a_set_already_is_refused(tmp_path):
+    from servogym.agents import residual_env_kwargs
+
+    residual = {"center": {"kp": 30}, "scale": 0.2}
+    for eid, kw in (("servogym/Schedule-PMD-RotaryInertia-v1", {}),
+                    (SCHEDULE, {"action_type": "residual"})):  # fmt: skip
+        with pytest.raises(ValueError, match=r"already acts around a safe set .*would stack"):
+            train(eid, "ppo", 16, out=tmp_path, n_envs=1, subprocess=False,
+                  progress_bar=False, env_kwargs=kw, residual=residual)  # fmt: skip
+    assert not any(tmp_path.iterdir())  # refused before anything was written
+    with pytest.raises(ValueError, match=r"unit box of registers .*MultiDiscrete"):
+        residual_env_kwargs(SCHEDULE, {"action_type": "raw"}, residual)
+
+
+@pytest.mark.parametrize("eid", ["servogym/Tune-PMD-Rotary-v0", "servogym/Tune-PMD-Rotary-v1"])
+def test_train_scales_the_rewards_once_on_either_version(eid, tmp_path, monkeypatch):
+    import warnings
+
+    from stable_baselines3.common.monitor import Monitor
+
+    from servogym.agents import _train
+
+    made = []
+    make = _train._EnvFactory.__call__
+    monkeypatch.setattr(_train._EnvFactory, "__call__", lambda self: made.append(make(self))
+                        or made[-1])  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # -v0: Gymnasium says -v1 exists
+        train(eid, "ppo", 16, out=tmp_path, n_envs=1, subprocess=False, progress_bar=False,
+              algo_kwargs={"n_steps": 16, "batch_size": 16})  # fmt: skip
+    (env,) = made
+    assert isinstance(env, Monitor) and env.unwrapped.reward_scale == 0.01
+    env.reset(seed=0)
+    _, r, *_, info = env.step(env.action_space.sample())
+    assert r == 0.01 * info["raw_reward"]  # the env's scale, nothing on top
+    assert json.loads((tmp_path / "config.json").read_text())["reward_scale"] == 0.01
+
+
+def test_evaluate_runs_the_baselines_with_their_own_registers_on_a_residual_id():
+    eid = "servogym/Schedule-PMD-RotaryInertia-v1"
+    res = CliRunner().invoke(
+        _app(), ["evaluate", "--env", eid, "--episodes", "2", "--env-kwargs",
+                 '{"n_moves": 2}', "--json"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.output)["chip defaults"]
+    unit = gym.make(eid, n_moves=2, action_type="unit")
+    want = summarize(run_episodes(unit, ConstantPolicy(unit.unwrapped.actions.from_values({})),
+                                  range(100_000, 100_002)))  # fmt: skip
+    assert got["mean_return"] == want["mean_return"]
+    # the residual box cannot reach the defaults: through it they would be another set
+    residual = gym.make(eid).unwrapped.actions
+    assert residual.to_values(residual.from_values({})) != unit.unwrapped.actions.to_values(
+        unit.unwrapped.actions.from_values({})
+    )
