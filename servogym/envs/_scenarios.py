@@ -79,7 +79,10 @@ class ScheduleScenario:
         if isinstance(k, bool) or not isinstance(k, int) or k < 2:
             raise ValueError(f"k must be an integer >= 2; got k={k!r}.")
         lo, hi = math.log(self.empty), math.log(self.part[1])
-        return [float(math.exp(lo + (hi - lo) * i / (k - 1))) for i in range(k)]
+        points = [float(math.exp(lo + (hi - lo) * i / (k - 1))) for i in range(k)]
+        # the ends exactly (exp(log(10)) is 10.000000000000007: outside a legal high of 10)
+        points[0], points[-1] = float(self.empty), float(self.part[1])
+        return points
 
     def env_kwargs(self) -> dict[str, Any]:
         """The ScheduleEnv keyword arguments of the scenario (what its id passes)."""

@@ -180,3 +180,13 @@ def test_docs_feasibility_table_is_the_scripts_output():
     assert run.returncode == 0, run.stderr[-2000:]
     table = run.stdout.split("\nwrote")[0].strip()
     assert table in (ROOT / "docs" / "envs.md").read_text()
+
+
+@pytest.mark.parametrize("k", [2, 4, 5])
+def test_operating_points_end_exactly_at_empty_and_the_part_high_end(k):
+    # exp(log(10)) is 10.000000000000007: the vertical axis refused its own top point
+    for s in SCENARIOS.values():
+        points = s.operating_points(k)
+        assert points[0] == s.empty and points[-1] == s.part[1] and len(points) == k
+        param = get_plant(s.plant).param(s.param)
+        assert all(param.low <= p <= param.high for p in points)
