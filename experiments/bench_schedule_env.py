@@ -2,7 +2,7 @@
 
     nice -n 10 .venv/bin/python experiments/bench_schedule_env.py
     nice -n 10 .venv/bin/python experiments/bench_schedule_env.py \\
-        --env servogym/Schedule-PMD-RotaryInertia-v0 --steps 200 --repeats 5 --json
+        --env servogym/Schedule-PMD-RotaryInertia-v1 --steps 200 --repeats 5 --json
 
 Each repeat steps the env(s) ``--steps`` times with the zero action (the scenario ids: their
 safe set; a plant id: ``action_type="residual"`` around the nominal set where there is one),
@@ -60,7 +60,7 @@ def _vector(env_id: str, kwargs: dict, steps: int, n: int = 2) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--env", default="servogym/Schedule-PMD-RotaryInertia-v0")
+    ap.add_argument("--env", default="servogym/Schedule-PMD-RotaryInertia-v1")
     ap.add_argument("--steps", type=int, default=200, help="env steps per repeat (>= 1)")
     ap.add_argument("--repeats", type=int, default=5, help="repeats (>= 1); medians reported")
     ap.add_argument("--json", action="store_true", help="print one JSON line")

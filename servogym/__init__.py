@@ -4,7 +4,7 @@ Exact (bit-exact to a written spec) emulations of servo-chip filters run around 
 plants; RL agents, autotuners and benchmarks choose the chip's parameters within its legal
 ranges, and the result exports in the form the hardware takes.
 
-Importing the package registers every Gymnasium env id (``servogym/Tune-PMD-Rotary-v0``,
+Importing the package registers every Gymnasium env id (``servogym/Tune-PMD-Rotary-v1``,
 ...; see docs/envs.md) without loading the simulator, so ``gym.register_envs(servogym)``
 and ``rl_zoo3 --gym-packages servogym`` work as with any env package.
 """
