@@ -72,14 +72,16 @@ LOADS: dict[str, dict[str, dict[str, float]]] = {
 
 LOADS_V1: dict[str, dict[str, dict[str, float]]] = {
     **LOADS,
-    "two-mass": {"light": {"load_inertia_kgm2": 3e-5}, "heavy": {"load_inertia_kgm2": 9e-5}},
+    "two-mass": {"light": {"load_inertia_kgm2": 1e-5}, "heavy": {"load_inertia_kgm2": 3e-5}},
 }
-"""servobench-v1's load conditions: v0's, but the heavy two-mass load is the family's nominal
-9e-5 kg*m^2 (3x the rotor, resonance 101 Hz), not 3e-4 (10x, 91 Hz). At 3e-4 no PID-only
-set met the tune command's margins and following-error limit together on MC2100 or MC58000
-(the reference search's 2,351 evaluations found no safe set; on MC58000 the closest missed
-the gain margin by 0.7 dB and the phase margin by 1 deg): that load asks for a notch, which
-only some chips have, so it belongs in a notch benchmark, not one every family can solve."""
+"""servobench-v1's load conditions: v0's, but the two-mass loads are a third of the rotor's
+inertia and equal to it (1e-5 and 3e-5 kg*m^2; resonance 174 and 123 Hz), not v0's 3e-5 and
+3e-4 (10x the rotor, 91 Hz). With v0's heavy load no PID-only set met the tune command's
+margins and following-error limit together on MC2100 or MC58000 (the reference search's
+2,351 evaluations found no safe set; on MC58000 the closest missed the gain margin by 0.7 dB
+and the phase margin by 1 deg), nor on MC2100 at the family's nominal 9e-5: such loads ask
+for a notch, which only some chips have, so they belong in a notch benchmark, not in one
+every family can solve."""
 
 
 @dataclasses.dataclass(frozen=True)
