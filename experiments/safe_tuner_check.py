@@ -18,6 +18,7 @@ violating any constraint the tune command sets). Each run is one line of
     nice -n 10 .venv/bin/python experiments/safe_tuner_check.py [--budgets 20,50]
         [--seeds 0,1,2] [--chips MC2100,MC58000,TurboPMAC2,6250]
         [--plants rotary,vertical-axis,two-mass,arm] [--tuners safe,tpe] [--no-warm-start]
+        [--results runs.jsonl]
 """
 
 from __future__ import annotations
@@ -96,13 +97,16 @@ def main() -> None:
     parser.add_argument("--tuners", default="safe,tpe")
     parser.add_argument("--no-warm-start", dest="warm", action="store_false")
     parser.add_argument("--report-only", action="store_true")
+    parser.add_argument("--results", default="runs.jsonl",
+                        help="the runs file in results/safe_tuner_check/ (another name: a "
+                             "fresh set of runs, e.g. after a change to the tuner)")  # fmt: skip
     args = parser.parse_args()
     budgets = sorted(int(b) for b in args.budgets.split(","))
     seeds = [int(s) for s in args.seeds.split(",")]
     chips, plants = args.chips.split(","), args.plants.split(",")
     tuners = args.tuners.split(",")
     OUT.mkdir(parents=True, exist_ok=True)
-    path = OUT / "runs.jsonl"
+    path = OUT / args.results
     done = {}
     if path.exists():
         for line in path.read_text().splitlines():
