@@ -163,15 +163,18 @@ def test_best_known_file_has_provenance_and_every_record_passed_its_check():
     assert {"servogym", "optuna", "pmd_spec", "pmac_spec", "parker6k_spec"} <= set(data["versions"])
     for i, rec in data["instances"].items():
         assert i in SUITE.ids("all")
-        assert rec["feasible"] and rec["check"]["passed"], i
         assert math.isfinite(rec["cost"]) and rec["check_cost"] == rec["cost"], i
+        if rec["feasible"]:  # a best-known set: it passed the check
+            assert rec["check"]["passed"] and rec["check"]["n_checked"] >= 1, i
+        else:  # no best-known set yet: the record says why (none safe, or none passed)
+            assert rec["n_feasible"] == 0 or rec["check"]["passed"] is False, i
 
 
 @pytest.mark.parametrize("instance_id", SUITE.ids("all"))
 def test_every_best_known_set_reproduces_and_passes_servogym_check(instance_id, tmp_path):
     rec = _records().get(instance_id)
-    if rec is None:
-        pytest.skip(f"{instance_id} has no best-known record yet")
+    if rec is None or not rec["feasible"]:
+        pytest.skip(f"{instance_id} has no best-known set yet")
     from servogym.autotune._report import write_param_set
     from servogym.cli import app
 
