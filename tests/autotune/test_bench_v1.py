@@ -336,3 +336,22 @@ def test_a_jobs_result_is_the_cheapest_safe_trial_that_passes_the_check(monkeypa
     none = _runner.checked_results(problem, trials, [1.0, 2.0, None], [0, 0, 1], 3)
     assert none == {"3": None}
     assert Run({**rec, "checked": none, "budget": 3}).best_at(3) == math.inf
+
+
+def test_a_larger_budget_never_reports_a_worse_checked_result(monkeypatch):
+    from servogym.autotune.bench import _runner
+    from servogym.sim import _check
+
+    passing = {1}  # only trial 1 passes the check
+    trials = [type("T", (), {"user_attrs": {"registers": {"sgp": n}}}) for n in range(40)]
+    space = type("S", (), {"make_params": staticmethod(lambda values: values)})()
+    problem = type("P", (), {"space": space, "scenario": None})()
+    monkeypatch.setattr(_check, "check_params", lambda params, scenario: type(
+        "R", (), {"passed": params["sgp"] in passing}))  # fmt: skip
+    # within 20 trials, trial 1 is the cheapest; the next 20 are cheaper and fail the check
+    costs = [5.0, 4.0] + [6.0] * 18 + [3.0 - 0.01 * k for k in range(20)]
+    got = _runner.checked_results(problem, trials, costs, [0] * 40, 40)
+    assert got["20"]["trial"] == 1 and got["40"]["trial"] == 1  # kept, not None
+    passing.add(39)  # a cheaper passing trial in the larger budget replaces it
+    got = _runner.checked_results(problem, trials, costs, [0] * 40, 40)
+    assert got["20"]["trial"] == 1 and got["40"]["trial"] == 39

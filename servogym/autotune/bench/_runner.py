@@ -388,25 +388,29 @@ def checked_results(
     (``servogym.sim.check_params`` on the problem's scenario: the reference integration,
     every loop latency, load and friction spreads), as ``{"trial": index, "cost": cost,
     "values": registers}``,
-    or ``None`` when none of the :data:`MAX_CHECKS` cheapest passes. Each trial is checked
-    once, whatever the number of budgets it is cheapest in."""
+    or ``None`` when none of the :data:`MAX_CHECKS` cheapest passes; a larger budget keeps the
+    smaller one's result when none of its cheaper trials passes. Each trial is checked once,
+    whatever the number of budgets it is cheapest in."""
     from servogym.sim._check import check_params
 
     verdicts: dict[int, bool] = {}
     out: dict[str, dict[str, Any] | None] = {}
+    previous: dict[str, Any] | None = None  # a larger budget never reports a worse result
     for b in sorted({x for x in CHECK_BUDGETS if x < budget} | {budget}):
         ranked = sorted(
             (c, i) for i, (c, f) in enumerate(zip(costs[:b], flags[:b], strict=True))
             if c is not None and f & (UNSAFE_FLAGS | FLAG_EXPERIMENT | FLAG_FAILED) == 0
         )  # fmt: skip
-        out[str(b)] = None
+        out[str(b)] = previous
         for c, i in ranked[:MAX_CHECKS]:
+            if previous is not None and c >= previous["cost"]:
+                break  # the smaller budget's result is as cheap
             values = {k: int(v) for k, v in trials[i].user_attrs["registers"].items()}
             if i not in verdicts:
                 params = problem.space.make_params(values)
                 verdicts[i] = check_params(params, problem.scenario).passed
             if verdicts[i]:
-                out[str(b)] = {"trial": i, "cost": c, "values": values}
+                out[str(b)] = previous = {"trial": i, "cost": c, "values": values}
                 break
     return out
 
