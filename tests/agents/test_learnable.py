@@ -36,8 +36,7 @@ def test_plain_ppo_trains_a_few_hundred_steps_and_updates_its_weights(eid):
     lengths = env.get_episode_lengths()
     n_moves = env.unwrapped.n_moves
     # Episodes do not end at the first step: an untrained policy acts around the safe set
-    # (its exploration, std 1 = the box's whole reach, still diverges some moves: on the
-    # coarse-lead axis about half the episodes end early).
+    # (its exploration, std 1 = the box's whole reach, still diverges some moves).
     assert len(lengths) >= 256 // n_moves - 1
     assert np.mean(lengths) > 2 and max(lengths) == n_moves
     rewards = env.get_episode_rewards()
