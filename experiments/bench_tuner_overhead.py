@@ -15,8 +15,13 @@ The shares are per sampled trial against the mean evaluation: a tuner that also 
 experiments or scores candidates itself (the model-based design of `safe`) has those
 evaluations in the evaluation mean and its sampled trials in the ask and tell columns.
 
+`--batch-size` is the trials asked before any is told (default 8, `servogym tune`'s): with
+more than one, GP and TPE ask with the batch's pending trials (GP: the q-batch acquisition);
+the benchmark (`servogym benchmark`) runs every study with a batch of 1.
+
     .venv/bin/python experiments/bench_tuner_overhead.py [--tuner tpe] [--trials 100]
-        [--workers 1] [--repeat 3] [--storages memory,journal,sqlite] [--no-margins]
+        [--workers 1] [--batch-size 8] [--repeat 3] [--storages memory,journal,sqlite]
+        [--no-margins]
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import time
 from pathlib import Path
 
 from servogym.autotune import Constraints, SearchSpace, Session, TuneProblem, get_tuner
-from servogym.autotune._session import quiet_optuna
+from servogym.autotune._session import DEFAULT_BATCH_SIZE, quiet_optuna
 from servogym.sim import Evaluator, Scenario
 
 STORAGES = {
@@ -41,7 +46,12 @@ STORAGES = {
 
 
 def measure(
-    tuner: str, storage: str | None, trials: int, workers: int, margins: bool
+    tuner: str,
+    storage: str | None,
+    trials: int,
+    workers: int,
+    margins: bool,
+    batch_size: int | None = None,
 ) -> dict[str, float]:
     spent = [0.0, 0]
     lock = threading.Lock()
@@ -66,7 +76,7 @@ def measure(
     with quiet_optuna():
         session = Session(problem, budget=trials, storage=storage, study_name="bench",
                           tuner_name=tuner, n_workers=workers,
-                          evaluator_factory=TimedEvaluator)  # fmt: skip
+                          evaluator_factory=TimedEvaluator, batch_size=batch_size)  # fmt: skip
         t0 = time.perf_counter()
         with session:
             get_tuner(tuner).run(session)
@@ -81,6 +91,7 @@ def main() -> None:
     parser.add_argument("--tuner", default="tpe")
     parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--batch-size", type=int, default=None)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--storages", default=",".join(STORAGES))
     parser.add_argument("--no-margins", dest="margins", action="store_false")
@@ -89,9 +100,13 @@ def main() -> None:
     for name in storages:
         if name not in STORAGES:
             parser.error(f"--storages takes names from {', '.join(STORAGES)}; got {name!r}")
+    if args.batch_size is not None and args.batch_size < 1:
+        parser.error(f"--batch-size must be >= 1; got {args.batch_size}")
     get_tuner(args.tuner)  # an unknown name fails here, with close matches
+    batch = args.batch_size or DEFAULT_BATCH_SIZE
     print(f"{args.trials} {args.tuner} trials, MC2100 vertical-axis, {args.workers} evaluation "
-          f"thread(s), margin constraints {'on' if args.margins else 'off'}, median of "
+          f"thread(s), batches of {batch}, margin constraints {'on' if args.margins else 'off'}, "
+          f"median of "
           f"{args.repeat}; per sampled trial, in ms of CPU")  # fmt: skip
     print(f"{'storage':10} {'eval ms':>8} {'sampler':>8} {'ask ms':>8} {'tell ms':>8} "
           f"{'sampler share':>14} {'(ask+tell) share':>17} {'wall s':>7}")  # fmt: skip
@@ -100,7 +115,7 @@ def main() -> None:
         for _ in range(args.repeat):
             with tempfile.TemporaryDirectory() as tmp:
                 m = measure(args.tuner, STORAGES[name](Path(tmp)), args.trials, args.workers,
-                            args.margins)  # fmt: skip
+                            args.margins, args.batch_size)  # fmt: skip
             n = max(m["n_sampled"], 1)
             per_eval = m["eval_s"] / max(m["n_eval"], 1)
             m = {

@@ -81,32 +81,32 @@ class TPETuner(OptunaTuner):
 
 
 class GPTuner(OptunaTuner):
-    """Gaussian-process Bayesian optimization (``optuna.samplers.GPSampler``; imports torch).
+    """Gaussian-process Bayesian optimization (``optuna.samplers.GPSampler``; imports torch)
+    on a capped history (:class:`servogym.autotune._gp.CappedGPSampler`).
 
-    The cost is deterministic (the simulation has no noise), which the GP is told.
-
-    One sampler serves every ask of a session, reseeded for each trial with the trial's
-    seed: it keeps the kernel parameters it fitted last as the start of the next fit, and
-    its search space, instead of fitting every Gaussian process from scratch. With one
-    worker process the asks come in a fixed order, so the same seed still gives the same
-    study (a resumed study starts with a fresh sampler, so from the resume on it differs
-    from an uninterrupted one, as with a different batch size).
+    What the GP sees: the best :data:`~servogym.autotune._gp.GP_KEEP_BEST` completed trials
+    (feasible ones by cost first, then the least violating) and the
+    :data:`~servogym.autotune._gp.GP_KEEP_RECENT` most recent others, plus the pending
+    trials of the batch; the objective and every constraint get their own process (logCEI,
+    qLogCEI with pending trials). The cost is deterministic (the simulation has no noise),
+    which the GP is told. Every trial is asked by a new sampler seeded with the trial's
+    seed, fitted from Optuna's default kernel parameters, so the same seed gives the same
+    study (a resume included) and an ask costs the same at trial 200 as at trial 60.
     """
 
     name = "gp"
 
-    def make_sampler(self, seed: int, session: Session) -> Any:
-        import optuna
-        from optuna.samplers._lazy_random_state import LazyRandomState
+    def __init__(self, keep_best: int | None = None, keep_recent: int | None = None) -> None:
+        from servogym.autotune import _gp
 
-        kept = getattr(self, "_kept", None)
-        if kept is None or kept[0] is not session:
-            sampler = optuna.samplers.GPSampler(seed=seed, deterministic_objective=True)
-            kept = self._kept = (session, sampler)
-        sampler = kept[1]
-        sampler._rng = LazyRandomState(seed)
-        sampler._independent_sampler = optuna.samplers.RandomSampler(seed=seed)
-        return sampler
+        best = _gp.GP_KEEP_BEST if keep_best is None else keep_best
+        recent = _gp.GP_KEEP_RECENT if keep_recent is None else keep_recent
+        self.keep_best, self.keep_recent = _gp.check_keep(best, recent)
+
+    def make_sampler(self, seed: int, session: Session) -> Any:
+        from servogym.autotune._gp import CappedGPSampler
+
+        return CappedGPSampler(seed=seed, keep_best=self.keep_best, keep_recent=self.keep_recent)
 
 
 class CMAESTuner(OptunaTuner):

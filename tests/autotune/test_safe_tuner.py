@@ -1,4 +1,4 @@
-"""The default tuner (``safe``) and GP's kept sampler (issue 20)."""
+"""The default tuner (``safe``) (issue 20; GP's capped sampler: test_gp_overhead.py)."""
 
 from __future__ import annotations
 
@@ -243,22 +243,3 @@ def test_multi_objective_tune_defaults_to_tpe(tmp_path):
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["tuner"] == "tpe"
-
-
-# ---------------------------------------------------------------- GP's kept sampler
-
-
-def test_gp_keeps_one_sampler_per_session_reseeded_per_trial_and_stays_reproducible():
-    tuner = get_tuner("gp")
-    session = object()
-    a = tuner.make_sampler(1, session)
-    b = tuner.make_sampler(2, session)
-    assert a is b  # one sampler: its fitted kernel parameters carry over
-    fresh = get_tuner("gp").make_sampler(2, object())
-    assert b._rng.rng.randint(1 << 30) == fresh._rng.rng.randint(1 << 30)  # the trial's seed
-    assert tuner.make_sampler(3, object()) is not a  # a new session, a new sampler
-
-    problem = short_problem("MC2100", "rotary", seed=6, margins=False)
-    r1 = run_study(problem, "gp", 14, storage=None, n_workers=1, batch_size=2)
-    r2 = run_study(problem, "gp", 14, storage=None, n_workers=2, batch_size=2)
-    assert trial_table(r1.trials) == trial_table(r2.trials)
