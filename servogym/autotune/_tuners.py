@@ -90,8 +90,18 @@ class GPTuner(OptunaTuner):
     trials of the batch; the objective and every constraint get their own process (logCEI,
     qLogCEI with pending trials). The cost is deterministic (the simulation has no noise),
     which the GP is told. Every trial is asked by a new sampler seeded with the trial's
-    seed, fitted from Optuna's default kernel parameters, so the same seed gives the same
-    study (a resume included) and an ask costs the same at trial 200 as at trial 60.
+    seed, its processes fitted from Optuna's default kernel parameters: nothing is kept
+    between asks, so the same seed gives the same study, and an ask costs about the same
+    at trial 200 as at trial 60. The acquisition is optimized from
+    :data:`~servogym.autotune._gp.GP_PRELIMINARY_SAMPLES` points and
+    :data:`~servogym.autotune._gp.GP_LOCAL_SEARCHES` local searches (docs/autotune.md,
+    "GP's per-trial overhead").
+
+    Args:
+        keep_best: Completed trials the GP sees for being the best (default
+            :data:`~servogym.autotune._gp.GP_KEEP_BEST`), >= 1.
+        keep_recent: Further completed trials it sees for being the most recent (default
+            :data:`~servogym.autotune._gp.GP_KEEP_RECENT`), >= 0; the two sum to >= 10.
     """
 
     name = "gp"
