@@ -26,6 +26,18 @@ BEGIN = "<!-- feasibility table: experiments/plant_feasibility.py -->"
 END = "<!-- end of feasibility table -->"
 
 
+def write_block(doc: Path, begin: str, end: str, table: str) -> None:
+    """Replace the one block between the ``begin`` and ``end`` markers of ``doc`` by
+    ``table`` (also used by schedule_feasibility.py)."""
+    block = f"{begin}\n{table}\n{end}"
+    text = doc.read_text()
+    new, n = re.subn(re.escape(begin) + r".*?" + re.escape(end), block, text, flags=re.S)
+    if n != 1:
+        raise SystemExit(f"{doc.parent.name}/{doc.name} has no block {begin} ... {end}")
+    doc.write_text(new)
+    print(f"wrote {doc}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help="replace the table in docs/plants.md")
@@ -33,13 +45,7 @@ def main() -> None:
     table = feasibility_table_markdown()
     print(table)
     if args.write:
-        text = DOC.read_text()
-        block = f"{BEGIN}\n{table}\n{END}"
-        new, n = re.subn(re.escape(BEGIN) + r".*?" + re.escape(END), block, text, flags=re.S)
-        if n != 1:
-            raise SystemExit(f"docs/plants.md has no block {BEGIN} ... {END}")
-        DOC.write_text(new)
-        print(f"wrote {DOC}")
+        write_block(DOC, BEGIN, END, table)
 
 
 if __name__ == "__main__":

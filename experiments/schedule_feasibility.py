@@ -16,8 +16,9 @@ checks that docs/envs.md still holds this script's output.
 from __future__ import annotations
 
 import argparse
-import re
 from pathlib import Path
+
+from plant_feasibility import write_block  # this folder: the script runs from it
 
 from servogym.envs._scenarios import feasibility_table_markdown
 
@@ -33,13 +34,7 @@ def main() -> None:
     table = feasibility_table_markdown()
     print(table)
     if args.write:
-        text = DOC.read_text()
-        block = f"{BEGIN}\n{table}\n{END}"
-        new, n = re.subn(re.escape(BEGIN) + r".*?" + re.escape(END), block, text, flags=re.S)
-        if n != 1:
-            raise SystemExit(f"docs/envs.md has no block {BEGIN} ... {END}")
-        DOC.write_text(new)
-        print(f"wrote {DOC}")
+        write_block(DOC, BEGIN, END, table)
 
 
 if __name__ == "__main__":
