@@ -547,23 +547,50 @@ class ModelBasedTuner(Tuner):
             )
         keys = ("accel_gain", "coulomb_cmd", "viscous_cmd", "gravity_cmd", "fit_rms")
         model = {k: float(np.mean([f[k] for f in fits])) for k in keys}
-        g = model["accel_gain"]
-        w0 = 1.0 / (6.5 * ctx.dt)
-        designs = []
-        for k in range(7):
-            w = w0 / 2**k
-            d = 3 * w / g
-            quantum = 0.01 * FULL_SCALE  # largest command step one count of D may cause
-            n = max(1, min(round(1 / (4 * w * ctx.dt)), math.ceil(d / (ctx.dt * quantum))))
-            design = ServoDesign(
-                p=3 * w * w / g,
-                i=w**3 / g,
-                d=d,
-                integral_limit=0.1 * FULL_SCALE + abs(model["gravity_cmd"]),
-                bias=model["gravity_cmd"],
-                vff=max(0.0, model["viscous_cmd"]),
-                aff=1.0 / g,
-                derivative_sample_s=n * ctx.dt,
-            )
-            designs.append((design, f"model-based: poles at -{w:.0f} rad/s"))
-        ctx.candidates(designs)
+        ctx.candidates(pole_placement_designs(model["accel_gain"], ctx.dt,
+                                              gravity_cmd=model["gravity_cmd"],
+                                              viscous_cmd=model["viscous_cmd"]))  # fmt: skip
+
+
+N_BANDWIDTHS = 7
+"""Candidate bandwidths of the model-based design, ``w = 1/(6.5 Ts) * 2^-k``, k = 0..6."""
+
+
+def pole_placement_designs(
+    accel_gain: float, dt: float, *, gravity_cmd: float = 0.0, viscous_cmd: float = 0.0
+) -> list[tuple[ServoDesign, str]]:
+    """The model-based rule's :data:`N_BANDWIDTHS` candidate designs, fastest first.
+
+    The PID places the closed-loop poles of a rigid axis at ``(s + w)^3`` (``p = 3w^2/g``,
+    ``d = 3w/g``, ``i = w^3/g``), its derivative sampled at most every ``1/(4w)``; bias =
+    the gravity holding command, Kvff = the viscous friction, Kaff = the inertia.
+
+    Args:
+        accel_gain: ``g``, the axis's acceleration per command count (counts/s^2), > 0.
+        dt: The servo period (s).
+        gravity_cmd: The command that holds the load (command counts).
+        viscous_cmd: Command per count/s of velocity (viscous friction).
+
+    Returns:
+        ``(design, note)`` pairs.
+    """
+    g = accel_gain
+    w0 = 1.0 / (6.5 * dt)
+    designs = []
+    for k in range(N_BANDWIDTHS):
+        w = w0 / 2**k
+        d = 3 * w / g
+        quantum = 0.01 * FULL_SCALE  # largest command step one count of D may cause
+        n = max(1, min(round(1 / (4 * w * dt)), math.ceil(d / (dt * quantum))))
+        design = ServoDesign(
+            p=3 * w * w / g,
+            i=w**3 / g,
+            d=d,
+            integral_limit=0.1 * FULL_SCALE + abs(gravity_cmd),
+            bias=gravity_cmd,
+            vff=max(0.0, viscous_cmd),
+            aff=1.0 / g,
+            derivative_sample_s=n * dt,
+        )
+        designs.append((design, f"model-based: poles at -{w:.0f} rad/s"))
+    return designs

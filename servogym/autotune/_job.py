@@ -24,8 +24,8 @@ from servogym.autotune._session import (
 from servogym.autotune._space import SearchSpace
 from servogym.autotune._tuners import DEFAULT_TUNER, OptunaTuner, get_tuner
 from servogym.chips._family import get_chip
-from servogym.sim._check import CheckLimits, CheckReport, check_params, write_bode
-from servogym.sim._scenario import Evaluator, MoveSpec, Scenario
+from servogym.sim._check import CheckLimits, CheckReport, write_bode
+from servogym.sim._scenario import MoveSpec, Scenario
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,7 +69,7 @@ def run_study(
     batch_size: int | None = None,
     warm_start: Mapping[str, int] | None = None,
     progress: ProgressCallback | None = None,
-    evaluator_factory: Callable[[Any], Any] = Evaluator,
+    evaluator_factory: Callable[[Any], Any] | None = None,
     load_if_exists: bool = False,
 ) -> StudyResult:
     """Tune ``problem`` with a registered tuner and return the best set.
@@ -88,7 +88,8 @@ def run_study(
         batch_size: Trials per sampler batch (default 8; a resume keeps the stored one).
         warm_start: Register values evaluated first (a new study only).
         progress: Called after every trial with (done, budget, best cost).
-        evaluator_factory: One evaluator per thread (tests pass a cheaper one).
+        evaluator_factory: One evaluator per thread, from the scenario (default the
+            problem's own; tests pass a cheaper one).
     """
     t0 = time.perf_counter()
     tuner_obj = get_tuner(tuner)
@@ -269,9 +270,13 @@ class TuneConfig:
         )
 
     def problem(self) -> TuneProblem:
-        """The :class:`TuneProblem` this configuration describes."""
+        """The :class:`TuneProblem` this configuration describes (a
+        :class:`~servogym.autotune._machine.MachineProblem` for a multi-axis plant)."""
         from servogym.autotune._problem import DEFAULT_MULTI_OBJECTIVES
+        from servogym.plants import MULTI_PLANTS
 
+        if self.plant in MULTI_PLANTS:
+            return self.machine_problem()
         constraints = Constraints(
             enabled=self.constraints,
             max_following_error=self.max_following_error,
@@ -297,6 +302,41 @@ class TuneConfig:
             seed=self.seed,
         )
 
+    def machine_problem(self) -> Any:
+        """The :class:`~servogym.autotune._machine.MachineProblem` of a multi-axis plant:
+        every axis's registers searched together (``--search``/``--fix`` names ``kp.2`` for
+        one axis, ``kp`` for every axis), the constraints per axis, no margin constraint
+        (the multi-axis check applies the margins)."""
+        from servogym.autotune._machine import MachineProblem, MachineScenario, MachineSpace
+        from servogym.autotune._problem import DEFAULT_MULTI_OBJECTIVES
+
+        if self.moves:
+            raise TuneError(
+                f"moves are a single-axis plant's; the {self.plant} is evaluated on its "
+                "coordinated moves and contours (servogym.sim._multieval.DEFAULT_TASKS)."
+            )
+        scenario = MachineScenario(
+            self.chip, self.plant, plant_values=dict(self.plant_params),
+            plant_ranges=dict(self.plant_ranges),
+        )  # fmt: skip
+        return MachineProblem(
+            scenario=scenario,
+            space=MachineSpace.for_machine(
+                scenario.chip_model, scenario.n_axes, self.search, self.fix
+            ),
+            n_plants=self.robust,
+            robust_mode=self.robust_mode,
+            constraints=Constraints(
+                enabled=self.constraints,
+                max_following_error=self.max_following_error,
+                max_saturation=self.max_saturation,
+                min_gain_margin_db=None,
+                min_phase_margin_deg=None,
+            ),
+            objectives=DEFAULT_MULTI_OBJECTIVES if self.multi_objective else ("cost",),
+            seed=self.seed,
+        )
+
 
 def tune(
     config: TuneConfig, progress: ProgressCallback | None = None
@@ -306,18 +346,24 @@ def tune(
     Returns:
         The study result and the summary written to ``summary.json``.
     """
+    from servogym.autotune import _machinejob
     from servogym.autotune._report import write_outputs
 
     problem = config.problem()
+    machine = problem.n_axes > 1
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     storage = config.storage or default_storage_url(out)
     warm = None
     if config.warm_start is not None:
-        warm = read_param_file(config.warm_start, problem.scenario.chip_model)
+        warm = (
+            _machinejob.read_warm_start(config.warm_start, problem)
+            if machine
+            else read_param_file(config.warm_start, problem.scenario.chip_model)
+        )
     design = None
     if warm is None and config.design_start and not config.resume:
-        design = design_start(problem, config)
+        design = (_machinejob.design_start if machine else design_start)(problem, config)
         warm = design.get("values")
     result = run_study(
         problem,
@@ -334,12 +380,17 @@ def tune(
     )
     report = None
     files: dict[str, bytes] = {}
+    extra = {} if design is None else {"design_start": design}
+    if machine:
+        if config.check:
+            result, report = check_candidates(result, config)
+        summary = _machinejob.write_outputs(result, out, config, check=report, extra=extra)
+        return result, summary
     if config.check:
         result, report = check_candidates(result, config)
         buf = io.BytesIO()
         write_bode(buf, problem.scenario, result.best_params, report.limits)
         files["bode.png"] = buf.getvalue()
-    extra = {} if design is None else {"design_start": design}
     summary = write_outputs(result, out, config, check=report, extra=extra, extra_files=files)
     return result, summary
 
@@ -409,9 +460,7 @@ def check_candidates(result: StudyResult, config: TuneConfig) -> tuple[StudyResu
     for trial in candidates:
         values = {k: int(v) for k, v in trial.user_attrs["registers"].items()}
         params = problem.space.make_params(values)
-        report = check_params(
-            params, problem.scenario, limits, extra_plants=extra, workers=config.workers
-        )
+        report = problem.check(params, limits, extra_plants=extra, workers=config.workers)
         checked.append({"trial": trial.number, "cost": float(trial.values[0]),
                         "passed": report.passed, "failures": list(report.failures)})  # fmt: skip
         if first is None:

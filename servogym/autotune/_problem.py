@@ -254,6 +254,26 @@ class TuneProblem:
         """Whether the study has more than one objective."""
         return len(self.objectives) > 1
 
+    @property
+    def n_axes(self) -> int:
+        """Axes tuned together (1; a machine's problem, ``_machine.MachineProblem``, more)."""
+        return 1
+
+    def make_evaluator(self) -> Evaluator:
+        """A new evaluator of the scenario (each thread of a session builds its own)."""
+        return Evaluator(self.scenario)
+
+    def aggregate(self, values: Mapping[str, int], evaluations: Sequence[Evaluation]) -> Outcome:
+        """One set's evaluations on the plant instances as one :class:`Outcome`."""
+        return aggregate(values, evaluations, self.robust_mode)
+
+    def check(self, params: Any, limits: Any, **kw: Any) -> Any:
+        """The check of a result (``servogym.sim.check_params`` on the scenario) before it
+        is written; ``kw``: ``extra_plants``, ``workers``."""
+        from servogym.sim._check import check_params
+
+        return check_params(params, self.scenario, limits, **kw)
+
     def nominal_plant(self) -> dict[str, float]:
         """The nominal plant instance with the scenario's fixed values."""
         return dataclasses.replace(self.scenario, randomise=False).draw_plant(
@@ -292,6 +312,17 @@ class TuneProblem:
             v = c.min_phase_margin_deg - outcome.phase_margin_deg
             out["phase_margin"] = min(max(v, -bound), bound)
         return out
+
+    def constraint_scales(self, fe_limit: float) -> dict[str, float]:
+        """What the safe tuner divides each constraint value by (a violation of one scale
+        is a large one): the following-error limit, the saturation limit, 3 dB, 15 deg."""
+        c = self.constraints
+        return {
+            "max_following_error": max(float(fe_limit), 1.0),
+            "saturation_fraction": max(float(c.max_saturation), 0.01),
+            "gain_margin": max(float(c.min_gain_margin_db or 0.0), 3.0),
+            "phase_margin": max(float(c.min_phase_margin_deg or 0.0), 15.0),
+        }
 
     def objective_values(self, outcome: Outcome) -> list[float]:
         """The study's objective values of an outcome."""

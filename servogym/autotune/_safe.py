@@ -155,21 +155,12 @@ class _Model:
         self.dim = len(self.unit_names)
         c = problem.constraints
         self.constraints_on = bool(c.enabled)
-        self.scales: dict[str, float] = {
-            "max_following_error": max(float(session.fe_limit), 1.0),
-            "saturation_fraction": max(float(c.max_saturation), 0.01),
-            "gain_margin": max(float(c.min_gain_margin_db or 0.0), 3.0),
-            "phase_margin": max(float(c.min_phase_margin_deg or 0.0), 15.0),
-        }
+        self.scales = problem.constraint_scales(session.fe_limit)
         self.names: list[str] | None = None
         self.rows: dict[int, _Row] = {}
         self._first_error: str | None = None  # the first refused set's error, for the log
         self._fit_cache: tuple[Any, _GP] | None = None
-        base = {
-            **self.space.family.parameter_space(self.space.chip_model).defaults(),
-            **self.space.fixed,
-        }
-        start = session.warm_start or base
+        start = session.warm_start or self.space.base_values()
         self.start = self._unit(self.space.to_unit(start))
 
     def _unit(self, params: Mapping[str, float]) -> np.ndarray:
@@ -513,6 +504,9 @@ class SafeTuner(OptunaTuner):
 
         if any(t.user_attrs.get("kind") == "sample" for t in session.trials()):
             return  # the study went on without a design (a smaller budget before)
+        if session.problem.n_axes > 1:  # identifies one axis; servogym tune designs a machine's
+            logger.info("safe: no model-based design of a machine; starting from its defaults")
+            return
         if session.budget < ModelBasedTuner.min_budget:
             return
         try:

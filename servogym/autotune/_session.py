@@ -48,9 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from servogym.autotune._problem import Outcome, TuneProblem, aggregate
-from servogym.autotune._space import register_values
-from servogym.sim._scenario import Evaluator
+from servogym.autotune._problem import Outcome, TuneProblem
 
 logger = logging.getLogger(__name__)
 
@@ -631,8 +629,8 @@ class Session:
             stored one.
         warm_start: Register values evaluated first (trial 0) when the study is new.
         progress: Called after every finished trial.
-        evaluator_factory: Builds one evaluator per thread (default
-            :class:`servogym.sim.Evaluator`).
+        evaluator_factory: Builds one evaluator per thread from the problem's scenario
+            (default the problem's own, :meth:`TuneProblem.make_evaluator`).
         heartbeat_interval: Seconds between heartbeats of a running trial (default
             :data:`HEARTBEAT_INTERVAL_S`).
         grace_period: Seconds without a heartbeat after which another worker fails a
@@ -655,7 +653,7 @@ class Session:
         batch_size: int | None = None,
         warm_start: Mapping[str, int] | None = None,
         progress: ProgressCallback | None = None,
-        evaluator_factory: Callable[[Any], Any] = Evaluator,
+        evaluator_factory: Callable[[Any], Any] | None = None,
         heartbeat_interval: int | None = None,
         grace_period: int | None = None,
         shared: bool = True,
@@ -671,7 +669,7 @@ class Session:
         self.tuner_name = tuner_name
         self.n_workers = n_workers
         self.progress = progress
-        self.evaluator_factory = evaluator_factory
+        self.evaluator_factory = evaluator_factory or (lambda _scenario: problem.make_evaluator())
         self.storage_url = storage if isinstance(storage, str) or storage is None else None
         self.study_name = study_name
         self.directions = ["minimize"] * len(problem.objectives)
@@ -726,7 +724,7 @@ class Session:
         self._plants = problem.plant_instances()
         self._local = threading.local()
         self._pool: cf.ThreadPoolExecutor | None = None
-        self._main_evaluator = evaluator_factory(problem.scenario)
+        self._main_evaluator = self.evaluator_factory(problem.scenario)
         self._main_evaluator.plant.set_params(problem.nominal_plant())  # experiments' plant
         self.fe_limit = problem.following_error_limit(self._main_evaluator)
         self._replay = [t for t in trials if t.state.is_finished() and counts_toward_budget(t)
@@ -958,7 +956,7 @@ class Session:
                 results.setdefault(i, {})[k] = fut.result()
                 if len(results[i]) == k_all:
                     evals = [results[i][j] for j in range(k_all)]
-                    yield i, aggregate(items[i][0], evals, self.problem.robust_mode)
+                    yield i, self.problem.aggregate(items[i][0], evals)
         finally:
             for fut in owner:
                 fut.cancel()
@@ -1099,7 +1097,7 @@ class Session:
                     values = self.problem.space.values_from_unit(trial.params)
                 try:
                     params = self.problem.space.make_params(values)
-                    values = register_values(params)
+                    values = self.problem.space.register_values(params)
                 except ValueError as exc:  # a family's cross-register rule
                     trial.set_user_attr("kind", kind)
                     trial.set_user_attr("registers", values)

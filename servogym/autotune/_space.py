@@ -108,6 +108,14 @@ class SearchSpace:
         """A validated parameter set: the chip defaults updated with ``values``."""
         return self.family.make_params(self.chip_model, dict(values))
 
+    def base_values(self) -> dict[str, int]:
+        """Every register's value when nothing is searched: the defaults and the fixed ones."""
+        return {**self.family.parameter_space(self.chip_model).defaults(), **self.fixed}
+
+    def register_values(self, params: Any) -> dict[str, int]:
+        """Every register of a set this space makes, by name (:func:`register_values`)."""
+        return register_values(params)
+
     def params_from_unit(self, unit: Mapping[str, float]) -> Any:
         """The parameter set a point of the unit cube stands for."""
         return self.make_params(self.values_from_unit(unit))

@@ -21,11 +21,14 @@ class Tuner(abc.ABC):
     Attributes:
         name: Registry name (``"tpe"``, ``"vendor-step"``, ...).
         supports_multi_objective: Whether the tuner can minimize several objectives.
+        supports_multi_axis: Whether the tuner can tune the axes of a machine together (a
+            search of the unit cube can; the classical procedures experiment on one axis).
         min_budget: Smallest budget the tuner can work with.
     """
 
     name: ClassVar[str]
     supports_multi_objective: ClassVar[bool] = False
+    supports_multi_axis: ClassVar[bool] = False
     min_budget: ClassVar[int] = 1
 
     def check(self, problem: TuneProblem, budget: int) -> None:
@@ -35,6 +38,12 @@ class Tuner(abc.ABC):
             raise TuneError(
                 f"the {self.name!r} tuner minimizes one objective; a multi-objective study "
                 f"needs one of {', '.join(multi)}."
+            )
+        if problem.n_axes > 1 and not self.supports_multi_axis:
+            multi = [n for n, t in TUNERS.items() if t.supports_multi_axis]
+            raise TuneError(
+                f"the {self.name!r} tuner experiments on one axis; a machine of "
+                f"{problem.n_axes} axes needs one of {', '.join(multi)}."
             )
         if budget < self.min_budget:
             raise TuneError(
@@ -55,6 +64,7 @@ class OptunaTuner(Tuner):
     """
 
     supports_multi_objective = True
+    supports_multi_axis = True
 
     @abc.abstractmethod
     def make_sampler(self, seed: int, session: Session) -> Any:
