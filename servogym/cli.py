@@ -276,10 +276,13 @@ def export(
         bool, typer.Option("--json", help="Print JSON for machines: format, chip, text, file.")
     ] = False,
 ) -> None:
-    """Export a parameter file in the form the hardware takes (written atomically)."""
+    """Export a parameter file in the form the hardware takes (written atomically); a file of
+    several axes (servogym tune on a machine) is exported with every axis, in the chip's
+    multi-axis form, unless --axis picks one."""
     from servogym._cli_common import check_choice
     from servogym._files import check_target, write_atomic
     from servogym.chips import ParameterError, family_of, read_params_file
+    from servogym.chips._axes import export_axes, load_axes
     from servogym.chips._family import get_chip
     from servogym.chips._load import _check_fmt
 
@@ -292,15 +295,38 @@ def export(
     try:
         if out is not None:
             check_target(out, inputs=[params_file], force=force)
-        loaded = read_params_file(params_file, input_format, chip, what="PARAMS_FILE")
-        family = family_of(loaded.params)
-        target = (
-            _export_format(fmt, family, loaded.params.model)
-            if fmt is not None
-            else family.native_format(loaded.params.model)
-        )
-        kw = {} if axis is None else {"axis": axis}
-        text = family.export(loaded.params, target, assumptions=loaded.assumptions, **kw)
+        machine, machine_error = None, None
+        if params_file.is_file():  # a file of several axes: all of them, or --axis
+            try:
+                got = load_axes(params_file, input_format, chip)
+                machine = got if len(got) > 1 else None
+            except (ParameterError, ValueError) as exc:
+                machine_error = exc
+        if machine is not None:
+            family, model = machine.family, machine.model
+            target = (_export_format(fmt, family, model) if fmt is not None
+                      else family.native_format(model))  # fmt: skip
+            if axis is None:
+                text = export_axes(machine, target)
+            elif axis in machine:
+                text = family.export(machine[axis], target, axis=axis)
+            else:
+                raise ParameterError(
+                    f"--axis must be one of the {machine.noun} numbers the file sets "
+                    f"({', '.join(map(str, machine.numbers))}); got --axis {axis}."
+                )
+        else:
+            try:
+                loaded = read_params_file(params_file, input_format, chip, what="PARAMS_FILE")
+            except ParameterError as exc:  # a damaged file of several axes: its own error
+                if machine_error is not None and "import_axes" in str(exc):
+                    raise machine_error from None
+                raise
+            family, model = family_of(loaded.params), loaded.params.model
+            target = (_export_format(fmt, family, model) if fmt is not None
+                      else family.native_format(model))  # fmt: skip
+            kw = {} if axis is None else {"axis": axis}
+            text = family.export(loaded.params, target, assumptions=loaded.assumptions, **kw)
         if out is not None:
             write_atomic(out, text)
     except (ParameterError, ValueError, OSError) as exc:
@@ -308,8 +334,10 @@ def export(
         fail(message, {"axis": "--axis", "motor": "--axis", "fmt": "--format"})
         return
     if as_json:
-        doc = {"format": target, "chip_model": loaded.params.model, "chip_family": family.name,
+        doc = {"format": target, "chip_model": model, "chip_family": family.name,
                "file": None if out is None else str(out), "text": text}  # fmt: skip
+        if machine is not None and axis is None:
+            doc["axes"] = list(machine.numbers)
         typer.echo(json.dumps(doc, indent=2))
     elif out is None:
         typer.echo(text, nl=not text.endswith("\n"))

@@ -20,7 +20,12 @@ TUNER_HELP = (
 def tune_command(
     chip: Annotated[str, typer.Option("--chip", help="Chip model, e.g. MC2100.")],
     plant: Annotated[
-        str, typer.Option("--plant", help="Plant family: rotary, two-mass, vertical-axis, arm.")
+        str,
+        typer.Option(
+            "--plant",
+            help="Plant family: rotary, two-mass, vertical-axis, arm; or a multi-axis machine, "
+            "two-link-arm or xy-stage (every axis tuned together, names kp.1, kp.2).",
+        ),
     ],
     budget: Annotated[
         int, typer.Option("--budget", help="Evaluations (trials), experiments included.")
@@ -175,7 +180,10 @@ def tune_command(
     from servogym.calibrate import plant_values
     from servogym.chips._family import get_chip
     from servogym.chips._space import ParameterError
-    from servogym.plants import get_plant, parse_plant_ranges
+    from servogym.plants import MULTI_PLANTS, get_plant, parse_plant_ranges
+
+    def any_plant(name: str):  # a single-axis family or a multi-axis machine
+        return MULTI_PLANTS[name] if name in MULTI_PLANTS else get_plant(name)
 
     console = Console()
     if tuner is None:
@@ -191,7 +199,12 @@ def tune_command(
     check_number("--min-phase-margin", min_phase_margin, low=0, high=90)
     check_count("--check-candidates", check_candidates, high=MAX_CHECK_CANDIDATES)
     check_choice("--chip", chip, get_chip)
-    check_choice("--plant", plant, get_plant)
+    check_choice("--plant", plant, any_plant)
+    if plant in MULTI_PLANTS and plant_file is not None:
+        fail(
+            f"--plant-file takes a plant.json of a single-axis plant (servogym calibrate); the "
+            f"{plant} is a multi-axis machine: give its values with --plant-param."
+        )
     check_choice("--tuner", tuner, get_tuner)
     if robust_mode not in ("mean", "worst"):
         fail(f"--robust-mode must be 'mean' or 'worst'; got --robust-mode {robust_mode!r}.")
@@ -248,7 +261,7 @@ def tune_command(
                 parse_plant_params(plant_param),
                 drop=tuple(r.partition("=")[0].strip() for r in plant_range or ()),
             ),
-            plant_ranges=parse_plant_ranges(plant_range, get_plant(plant) if plant_range else None),
+            plant_ranges=parse_plant_ranges(plant_range, any_plant(plant) if plant_range else None),
             seed=seed,
             workers=workers,
             robust=robust,
@@ -271,7 +284,12 @@ def tune_command(
             study_name=study_name,
         )
         problem = config.problem()  # validate everything before the progress bar
-        if warm_start is not None:
+        get_tuner(tuner).check(problem, budget)
+        if warm_start is not None and problem.n_axes > 1:
+            from servogym.autotune._machinejob import read_warm_start
+
+            read_warm_start(warm_start, problem)
+        elif warm_start is not None:
             from servogym.autotune._job import read_param_file
 
             read_param_file(warm_start, problem.scenario.chip_model)
@@ -355,6 +373,8 @@ def tune_command(
         return
     console.print(summary_heading(summary), highlight=False)
     console.print(summary_table(summary))
+    if summary.get("n_axes", 1) > 1:
+        console.print(axes_table(summary))
     if not summary["feasible"]:
         console.print(
             "[yellow]warning:[/yellow] no trial met the constraints; the best cost is shown. "
@@ -524,6 +544,32 @@ def summary_table(summary: dict):
     table.add_column("tuned", justify="right")
     for key, label in TABLE_METRICS:
         table.add_row(label, _fmt(summary["default"][key]), _fmt(summary["tuned"][key]))
+    return table
+
+
+def axes_table(summary: dict):
+    """A machine's per-axis figures and contouring error, chip defaults vs tuned."""
+    from rich.table import Table
+
+    table = Table()
+    table.add_column(f"{summary['plant']} ({summary['axis_noun']} numbers)")
+    table.add_column("default", justify="right")
+    table.add_column("tuned", justify="right")
+    d, t = summary["default"], summary["tuned"]
+    for k, (name, number) in enumerate(zip(summary["axes"], summary["axis_numbers"], strict=True)):
+        label = f"{name} ({summary['axis_noun']} {number})"
+        table.add_row(
+            f"{label}: max following error (counts)",
+            _fmt(d["axis_following_error"][k]),
+            _fmt(t["axis_following_error"][k]),
+        )
+        table.add_row(f"{label}: saturation (fraction of ticks)",
+                      _fmt(d["axis_saturation"][k]), _fmt(t["axis_saturation"][k]))  # fmt: skip
+    for key, label in (
+        ("max_contour_error_um", "max contouring error (um)"),
+        ("rms_contour_error_um", "RMS contouring error, worst task (um)"),
+    ):
+        table.add_row(label, _fmt(d[key]), _fmt(t[key]))  # fmt: skip
     return table
 
 

@@ -355,6 +355,8 @@ def tune(
     out.mkdir(parents=True, exist_ok=True)
     storage = config.storage or default_storage_url(out)
     warm = None
+    if machine and config.warm_start is not None:
+        _machinejob.check_inputs(problem, out, [config.warm_start])
     if config.warm_start is not None:
         warm = (
             _machinejob.read_warm_start(config.warm_start, problem)

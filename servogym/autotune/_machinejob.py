@@ -159,6 +159,21 @@ def read_warm_start(path: str | Path, problem: MachineProblem) -> dict[str, int]
     return problem.space.register_values(axes)
 
 
+def check_inputs(problem: MachineProblem, out: Path, inputs: list[str | Path]) -> None:
+    """Refuse a run whose outputs would replace one of its input files (a warm start kept
+    in the run folder as ``best_params.json``), before the study.
+
+    Raises:
+        servogym._files.FileSafetyError: naming the file.
+    """
+    from servogym._files import check_target
+
+    names = [*output_names(problem).values(), "trials.csv", "convergence.png", "contour.png",
+             "summary.json"]  # fmt: skip
+    for name in names:
+        check_target(Path(out) / name, inputs=inputs, force=True, what="--out")
+
+
 def output_names(problem: MachineProblem) -> dict[str, str]:
     """File name of each format of the tuned sets (those of a single-axis tune)."""
     from servogym.autotune._report import export_names
