@@ -21,6 +21,7 @@ from servogym.sim._machine import (
 )
 from servogym.sim._margins import Margins
 from servogym.sim._metrics import METRIC_NAMES, EpisodeMetrics
+from servogym.sim._multicheck import MachineCheckReport, check_machine_params
 from servogym.sim._multieval import (
     ContourSpec,
     CoordinatedSpec,
@@ -72,6 +73,7 @@ __all__ = [
     "Evaluator",
     "Kinematics",
     "LinePath",
+    "MachineCheckReport",
     "Margins",
     "MoveSpec",
     "MultiCostWeights",
@@ -84,6 +86,7 @@ __all__ = [
     "Traces",
     "axis_latencies",
     "check_machine",
+    "check_machine_params",
     "check_params",
     "contour",
     "contour_error",

@@ -323,22 +323,36 @@ def case_failures(
     out = []
     if r.diverged:
         out.append(f"{r.name}: diverged ({r.divergence_reason}) at t = {r.divergence_time_s:.4g} s")
-    fe, fe_max = r.max_following_error, r.following_error_limit
-    if fe > fe_max:
-        out.append(
-            f"{r.name}: following error: {fe:.0f} counts > {fe_max:.4g} counts "
-            f"({fe - fe_max:.4g} counts over)"
-        )
-    sat, sat_max = r.saturation_fraction, limits.max_saturation
-    if sat > sat_max:
-        out.append(
-            f"{r.name}: saturation: {100 * sat:.1f} % of ticks at the motor limit > "
-            f"{100 * sat_max:g} % ({100 * (sat - sat_max):.1f} points over)"
-        )
-    m = op.margins  # the worst holding point's
+    out += run_failures(r.name, r.max_following_error, r.following_error_limit,
+                        r.saturation_fraction, limits)  # fmt: skip
     where = r.name
     if op.position_dependent:
         where += f" (holding at {op.points[op.worst]:+.4g} {unit}".rstrip() + ")"
+    return out + margin_failures(where, op.margins, limits)  # the worst holding point's
+
+
+def run_failures(
+    name: str, fe: float, fe_max: float, saturation: float, limits: CheckLimits
+) -> list[str]:
+    """The following error (counts) and the saturation (fraction of ticks) above their
+    limits, each naming ``name`` and by how much."""
+    out = []
+    if fe > fe_max:
+        out.append(
+            f"{name}: following error: {fe:.0f} counts > {fe_max:.4g} counts "
+            f"({fe - fe_max:.4g} counts over)"
+        )
+    sat_max = limits.max_saturation
+    if saturation > sat_max:
+        out.append(
+            f"{name}: saturation: {100 * saturation:.1f} % of ticks at the motor limit > "
+            f"{100 * sat_max:g} % ({100 * (saturation - sat_max):.1f} points over)"
+        )
+    return out
+
+
+def margin_failures(where: str, m: Margins, limits: CheckLimits) -> list[str]:
+    """An unstable loop (with its growth per tick), else each margin below its minimum."""
     if not m.stable:
         radius = m.spectral_radius
         grows = (
@@ -346,8 +360,8 @@ def case_failures(
             if math.isfinite(radius) and radius > 1
             else ""
         )
-        out.append(f"{where}: unstable closed loop{grows}")
-        return out
+        return [f"{where}: unstable closed loop{grows}"]
+    out = []
     gm, pm = m.gain_margin_db, m.phase_margin_deg
     if gm < limits.min_gain_margin_db:
         out.append(
