@@ -8,8 +8,9 @@ without touching the envs.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -97,6 +98,64 @@ def _resolve(
     return tuple(space[n] for n in names), fixed_values
 
 
+def check_box_action(action: Any, specs: Sequence[ParamSpec], shape: tuple[int, ...]) -> np.ndarray:
+    """``action`` as a float64 array of ``shape``, one entry per spec in [-1, 1].
+
+    Raises:
+        ValueError: for a wrong shape or a non-numeric action, or an entry that is NaN,
+            infinite or outside [-1, 1]; the message names the index, the parameter and the
+            value.
+    """
+    names = [s.name for s in specs]
+    kind = np.asarray(action).dtype.kind
+    if kind not in "iuf":  # complex (its imaginary part would be dropped), bool, text
+        raise ValueError(
+            f"the action must be an array of {len(names)} real numbers in [-1, 1] "
+            f"({', '.join(names)}); got {action!r} of dtype {np.asarray(action).dtype}."
+        )
+    try:
+        a = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"the action must be an array of {len(names)} numbers in [-1, 1] "
+            f"({', '.join(names)}); got {action!r}."
+        ) from None
+    if a.shape != shape:
+        raise ValueError(
+            f"the action must have shape {shape} (one entry per parameter: "
+            f"{', '.join(names)}); got shape {a.shape}."
+        )
+    for i, (spec, u) in enumerate(zip(specs, a, strict=True)):
+        if not (math.isfinite(u) and -1.0 <= u <= 1.0):
+            raise ValueError(
+                f"action[{i}] ({spec.name}) must be a finite number in [-1, 1]; "
+                f"got action[{i}]={u!r}."
+            )
+    return a
+
+
+def check_raw_action(action: Any, specs: Sequence[ParamSpec], nvec: np.ndarray) -> np.ndarray:
+    """``action`` as an integer array, entry ``i`` in ``0 .. nvec[i] - 1``.
+
+    Raises:
+        ValueError: for a wrong shape, a non-integer entry or one outside its range.
+    """
+    a = np.asarray(action)
+    if a.shape != nvec.shape or not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(
+            f"the action must be an integer array of shape {nvec.shape} "
+            f"({', '.join(s.name for s in specs)}); got {a.dtype} of shape {a.shape}."
+        )
+    for i, spec in enumerate(specs):
+        n = int(nvec[i])
+        if not 0 <= int(a[i]) < n:
+            raise ValueError(
+                f"action[{i}] ({spec.name}) must satisfy 0 <= action[{i}] <= {n - 1} "
+                f"(meaning {spec.range_text}); got action[{i}]={int(a[i])}."
+            )
+    return a
+
+
 class UnitActions:
     """A Box in [-1, 1], one entry per register, mapped by :meth:`ParamSpec.from_unit`.
 
@@ -123,45 +182,16 @@ class UnitActions:
         self.names = tuple(s.name for s in self.specs)
         self.space = spaces.Box(-1.0, 1.0, shape=(len(self.specs),), dtype=np.float32)
 
-    def _array(self, action: Any) -> np.ndarray:
-        kind = np.asarray(action).dtype.kind
-        if kind not in "iuf":  # complex (its imaginary part would be dropped), bool, text
-            raise ValueError(
-                f"the action must be an array of {len(self.names)} real numbers in [-1, 1] "
-                f"({', '.join(self.names)}); got {action!r} of dtype "
-                f"{np.asarray(action).dtype}."
-            )
-        try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"the action must be an array of {len(self.names)} numbers in [-1, 1] "
-                f"({', '.join(self.names)}); got {action!r}."
-            ) from None
-        if a.shape != self.space.shape:
-            raise ValueError(
-                f"the action must have shape {self.space.shape} (one entry per parameter: "
-                f"{', '.join(self.names)}); got shape {a.shape}."
-            )
-        return a
-
     def checked(self, action: Any) -> np.ndarray:
         """``action`` as a float64 array, after checking it (the one check of every Box
-        action map: unit and residual).
+        action map: unit, residual, and the axes of :class:`AxesActions`).
 
         Raises:
             ValueError: for a wrong shape or a non-numeric action, or an entry that is NaN,
                 infinite or outside [-1, 1]; the message names the index, the parameter and
                 the value.
         """
-        a = self._array(action)
-        for i, (spec, u) in enumerate(zip(self.specs, a, strict=True)):
-            if not (math.isfinite(u) and -1.0 <= u <= 1.0):
-                raise ValueError(
-                    f"action[{i}] ({spec.name}) must be a finite number in [-1, 1]; "
-                    f"got action[{i}]={u!r}."
-                )
-        return a
+        return check_box_action(action, self.specs, self.space.shape)
 
     def to_values(self, action: Any) -> dict[str, int]:
         """Register values of ``action``: the fixed ones, then one per action entry.
@@ -218,20 +248,9 @@ class RawActions:
         Raises:
             ValueError: for a wrong shape, a non-integer entry or one outside its range.
         """
-        a = np.asarray(action)
-        if a.shape != self.space.shape or not np.issubdtype(a.dtype, np.integer):
-            raise ValueError(
-                f"the action must be an integer array of shape {self.space.shape} "
-                f"({', '.join(self.names)}); got {a.dtype} of shape {a.shape}."
-            )
+        a = check_raw_action(action, self.specs, self.space.nvec)
         values = dict(self.fixed)
         for i, spec in enumerate(self.specs):
-            n = int(self.space.nvec[i])
-            if not 0 <= int(a[i]) < n:
-                raise ValueError(
-                    f"action[{i}] ({spec.name}) must satisfy 0 <= action[{i}] <= {n - 1} "
-                    f"(meaning {spec.range_text}); got action[{i}]={int(a[i])}."
-                )
             values[spec.name] = spec.low + int(a[i])
         return values
 
@@ -324,6 +343,96 @@ class ResidualActions:
         return np.clip((u - self.center) / self.scale, -1.0, 1.0).astype(np.float32)
 
 
+class AxesActions:
+    """The actions of every axis of one controller side by side: one action for a machine.
+
+    Each axis has its own action map (:class:`UnitActions`, :class:`RawActions` or
+    :class:`ResidualActions` of the one chip model); the action is theirs concatenated in
+    axis order, and its entries are named ``<axis>.<register>`` (``shoulder.kp``, then
+    ``elbow.kp``). Checks name the entry's index in the whole action.
+
+    Args:
+        axes: The axis names, in axis order.
+        maps: One action map per axis, all Box or all MultiDiscrete.
+    """
+
+    def __init__(self, axes: tuple[str, ...], maps: tuple[Any, ...]) -> None:
+        from servogym.envs._machine import axis_register
+
+        if len(axes) != len(maps) or not maps:
+            raise ValueError(f"give one action map per axis ({len(axes)}); got {len(maps)}.")
+        self.axes, self.maps = tuple(axes), tuple(maps)
+        self.family, self.chip_model = maps[0].family, maps[0].chip_model
+        self.specs = tuple(
+            dataclasses.replace(s, name=axis_register(a, s.name))
+            for a, m in zip(self.axes, self.maps, strict=True)
+            for s in m.specs
+        )
+        self.names = tuple(s.name for s in self.specs)
+        self.fixed = {
+            axis_register(a, k): v
+            for a, m in zip(self.axes, self.maps, strict=True)
+            for k, v in m.fixed.items()
+        }
+        self._cuts = np.cumsum([len(m.names) for m in self.maps])[:-1]
+        if all(isinstance(m.space, spaces.Box) for m in self.maps):
+            self.space = spaces.Box(-1.0, 1.0, shape=(len(self.specs),), dtype=np.float32)
+        elif all(isinstance(m.space, spaces.MultiDiscrete) for m in self.maps):
+            self.space = spaces.MultiDiscrete(np.concatenate([m.space.nvec for m in self.maps]))
+        else:
+            raise ValueError("the axes' action maps must be all Box or all MultiDiscrete")
+
+    def _parts(self, action: Any) -> list[np.ndarray]:
+        if isinstance(self.space, spaces.Box):
+            a = check_box_action(action, self.specs, self.space.shape)
+        else:
+            a = check_raw_action(action, self.specs, self.space.nvec)
+        return np.split(a, self._cuts)
+
+    def axis_values(self, action: Any) -> list[dict[str, int]]:
+        """Per axis, its complete register values (the map's ``to_values``).
+
+        Raises:
+            ValueError: for a wrong shape or type, or an entry outside its range, naming the
+                index in the whole action and the entry's ``<axis>.<register>`` name.
+        """
+        return [m.to_values(p) for m, p in zip(self.maps, self._parts(action), strict=True)]
+
+    def to_values(self, action: Any) -> dict[str, int]:
+        """Every axis's register values, named ``<axis>.<register>``."""
+        from servogym.envs._machine import axis_register
+
+        return {
+            axis_register(a, k): v
+            for a, values in zip(self.axes, self.axis_values(action), strict=True)
+            for k, v in values.items()
+        }
+
+    def to_params(self, action: Any) -> list[Any]:
+        """One chip parameter set per axis, in axis order."""
+        return [m.to_params(p) for m, p in zip(self.maps, self._parts(action), strict=True)]
+
+    def from_values(self, values: Any) -> np.ndarray:
+        """The action closest to ``values``: a mapping (``<axis>.<register>`` for one axis, a
+        plain register name for every axis) or one mapping per axis; raises as the axes'
+        maps do."""
+        from servogym.envs._machine import per_axis
+
+        split = per_axis(values, self.axes, "values")
+        return np.concatenate([m.from_values(v) for m, v in zip(self.maps, split, strict=True)])
+
+    @property
+    def center_values(self) -> dict[str, int]:
+        """The residual maps' centre sets, named ``<axis>.<register>``."""
+        from servogym.envs._machine import axis_register
+
+        return {
+            axis_register(a, k): v
+            for a, m in zip(self.axes, self.maps, strict=True)
+            for k, v in m.center_values.items()
+        }
+
+
 ACTION_TYPES = {"unit": UnitActions, "raw": RawActions, "residual": ResidualActions}
 """Built-in action maps by name: ``"unit"`` (Box in [-1, 1]), ``"raw"`` (MultiDiscrete) and
 ``"residual"`` (Box in [-1, 1] around a safe set, :class:`ResidualActions`)."""
@@ -336,12 +445,18 @@ def make_action_map(
     params: tuple[str, ...] | None,
     fixed: Mapping[str, Any] | None,
     *,
-    center: Mapping[str, Any] | None = None,
+    center: Any = None,
     residual_scale: float = DEFAULT_RESIDUAL_SCALE,
+    axes: tuple[str, ...] | None = None,
 ) -> Any:
     """An action map by name, or ``action_type`` itself when it is already one.
 
     ``center`` and ``residual_scale`` are those of ``"residual"`` (:class:`ResidualActions`).
+    With ``axes`` (a machine's axis names), one map per axis side by side
+    (:class:`AxesActions`): ``params``, ``fixed`` and ``center`` are then split by axis
+    (``servogym.envs._machine.per_axis``: ``<axis>.<register>`` for one axis, a plain name
+    for every axis), and registers the machine holds for its axes (a PMD chip's time-sliced
+    ``sample_time_us``) are fixed on every axis.
     """
     if not isinstance(action_type, str):
         return action_type
@@ -352,9 +467,60 @@ def make_action_map(
             f"action_type must be one of {', '.join(map(repr, ACTION_TYPES))} or an action "
             f"map object; got action_type={action_type!r}."
         ) from None
+    if axes is not None:
+        from servogym.envs._machine import machine_fixed, per_axis
+
+        held = machine_fixed(chip_model, len(axes))
+        fixes = per_axis(fixed, axes, "fixed")
+        names = _axis_params(params, axes)
+        centers = per_axis(center, axes, "center") if center is not None else [None] * len(axes)
+        maps = tuple(
+            _one_map(cls, family, chip_model, p, {**held, **f}, c, residual_scale)
+            for p, f, c in zip(names, fixes, centers, strict=True)
+        )
+        return AxesActions(axes, maps)
+    return _one_map(cls, family, chip_model, params, fixed, center, residual_scale)
+
+
+def _one_map(cls, family, chip_model, params, fixed, center, residual_scale) -> Any:
     if cls is ResidualActions:
         return cls(family, chip_model, params, fixed, center, residual_scale)
     return cls(family, chip_model, params, fixed)
+
+
+def _axis_params(
+    params: tuple[str, ...] | None, axes: tuple[str, ...]
+) -> list[tuple[str, ...] | None]:
+    """Per axis, the registers its action sets: a plain name on every axis, an
+    ``<axis>.<register>`` name on its own; ``None``: every tunable one."""
+    from servogym.envs._machine import AXIS_SEPARATOR
+
+    if params is None:
+        return [None] * len(axes)
+    if isinstance(params, str) or not all(isinstance(n, str) for n in params):
+        raise ValueError(
+            f"params must be a sequence of register names, e.g. ('kp', 'elbow.kd'); got "
+            f"params={params!r}."
+        )
+    out: list[list[str]] = [[] for _ in axes]
+    for name in params:
+        axis, sep, register = name.partition(AXIS_SEPARATOR)
+        if not sep:
+            for names in out:
+                names.append(name)
+        elif axis in axes:
+            out[axes.index(axis)].append(register)
+        else:
+            raise ValueError(
+                f"params names axis {axis!r} in {name!r}; the axes are {', '.join(axes)}."
+            )
+    for axis, names in zip(axes, out, strict=True):
+        if not names:
+            raise ValueError(
+                f"params sets no register of axis {axis!r}; name one on every axis (a plain "
+                f"name such as 'kp' sets it on all); got params={tuple(params)!r}."
+            )
+    return [tuple(n) for n in out]
 
 
 def _make(family: ChipFamily, chip_model: str, values: Mapping[str, int]) -> Any:

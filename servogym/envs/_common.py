@@ -58,10 +58,13 @@ def make_scenario(
     and refused in one line when an end is more than the motor can move. ``moves``
     (``servogym.sim.MoveSpec``s) replace the plant family's default moves.
     """
+    from servogym.envs._machine import MachineScenario, is_machine
+
     if scenario is not None:
-        if not isinstance(scenario, Scenario):
+        if not isinstance(scenario, Scenario | MachineScenario):
             raise TypeError(
-                f"scenario must be a servogym.sim.Scenario; got {type(scenario).__name__}."
+                f"scenario must be a servogym.sim.Scenario (a multi-axis plant: a "
+                f"servogym.envs._machine.MachineScenario); got {type(scenario).__name__}."
             )
         if plant_range:
             raise ValueError(
@@ -78,6 +81,20 @@ def make_scenario(
             f"chip_model must be a model of the {family!r} family for this env id; got "
             f"chip_model={chip_model!r} of family {chip.name!r} (its models: "
             f"{', '.join(get_chip_family_models(family))})."
+        )
+    if is_machine(plant):
+        if moves:
+            raise ValueError(
+                f"moves are single-axis MoveSpecs; the {plant!r} plant runs its tasks (give a "
+                f"MachineScenario with tasks instead); got moves={moves!r}."
+            )
+        return MachineScenario(
+            model,
+            plant,
+            dict(plant_values or {}),
+            randomise=True,
+            sample_scale=sample_scale,
+            plant_ranges=dict(plant_range or {}),
         )
     ranges = get_plant(plant).validate_ranges(
         plant_range, option="plant_range", fixed=plant_values or ()
@@ -119,7 +136,9 @@ def options_plant_values(
                 f"options['plant_values'] must be a dict of plant parameter values (SI); got "
                 f"plant_values={options['plant_values']!r}."
             )
-        family = get_plant(scenario.plant)
+        from servogym.envs._machine import plant_family
+
+        family = plant_family(scenario.plant)
         return family.validate({**scenario.plant_values, **dict(options["plant_values"])})
     return scenario.draw_plant(rng)
 

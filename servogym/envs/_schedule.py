@@ -19,9 +19,25 @@ from servogym.envs._common import (
     markdown_table,
     options_plant_values,
 )
-from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP, clip, move_features
+from servogym.envs._machine import (
+    MACHINE_CENTERS,
+    MACHINE_CYCLES,
+    MachineCycle,
+    axis_register,
+    axis_runs,
+    cycle_sweep,
+    is_machine,
+    machine_need,
+    plant_family,
+    run_move,
+    worst_need,
+)
+from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP, clip
 from servogym.plants import get_plant
 from servogym.sim import DIVERGENCE_PENALTY, Scenario, ServoLoop, move_cost
+from servogym.sim._contour import contour_error
+from servogym.sim._machine import MultiServoLoop
+from servogym.sim._multieval import CoordinatedSpec, task_cost
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,7 +101,10 @@ the state features, before the last action."""
 
 
 def cycle_for(plant: str) -> PickAndPlace:
-    """The pick-and-place cycle of a plant family (:data:`CYCLES`, or its fallback)."""
+    """The pick-and-place cycle of a plant family (:data:`CYCLES`, a machine's
+    :data:`~servogym.envs._machine.MACHINE_CYCLES`, or its fallback)."""
+    if is_machine(plant):
+        return MACHINE_CYCLES[plant]
     if plant in CYCLES:
         return CYCLES[plant]
     return PickAndPlace(get_plant(plant).randomised()[0])
@@ -248,6 +267,11 @@ class ScheduleEnv(gym.Env):
             if action_type is None:
                 action_type = "stored" if preset.stored_sets else "residual"
             center = dict(preset.center) if center is None else center
+        machine = is_machine(plant) if scenario is None else not isinstance(scenario, Scenario)
+        if machine:
+            # a machine's Schedule ids observe the configuration and act around a safe set
+            condition = True if condition is None else condition
+            action_type = "residual" if action_type is None else action_type
         self.preset = preset
         self.condition = bool(condition)
         from servogym.calibrate._plantfile import env_plant_values
@@ -257,8 +281,16 @@ class ScheduleEnv(gym.Env):
             chip_model, plant, scenario, plant_values, sample_scale, family, plant_range, moves
         )
         self.chip = self.scenario.chip
-        self.plant_family = get_plant(self.scenario.plant)
+        self.plant_family = plant_family(self.scenario.plant)
+        self.axes: tuple[str, ...] | None = getattr(self.scenario, "axes", None)
+        """A multi-axis plant's axis names; ``None`` for a single-axis plant."""
         self.cycle = cycle if cycle is not None else cycle_for(self.scenario.plant)
+        if (self.axes is None) == isinstance(self.cycle, MachineCycle):
+            want = "PickAndPlace" if self.axes is None else "MachineCycle"
+            raise ValueError(
+                f"cycle must be a {want} on the {self.scenario.plant!r} plant; got "
+                f"cycle={self.cycle!r}."
+            )
         p = self.plant_family.param(self.cycle.param)
         self._empty = p.low if self.cycle.empty is None else p.validate(self.cycle.empty)
         # The part's range: the cycle's, else the scenario's plant range for the parameter,
@@ -271,37 +303,61 @@ class ScheduleEnv(gym.Env):
                 f"the cycle's part range must have low <= high; got part={self._part!r} for "
                 f"{p.name}."
             )
-        self.need = cycle_need(self.scenario, self.cycle.param, self._empty, self._part)
         self.defaults = self.scenario.default_params()
         self.plant = self.plant_family.build(self.scenario.draw_plant(np.random.default_rng(0)))
-        self.loop = ServoLoop(
+        loop_class = ServoLoop if self.axes is None else MultiServoLoop
+        self.loop = loop_class(
             self.plant,
             self.defaults,
             self.scenario.assumptions,
             integrator=self.scenario.integrator,
             substeps=self.scenario.substeps,
         )
+        if self.axes is None:
+            self.need = cycle_need(self.scenario, self.cycle.param, self._empty, self._part)
+            self._spec = self.scenario.moves[0]
+            self._start = np.zeros(1)
+            firsts = [self._spec]
+        else:
+            self._start = np.array([io.start_qpos for io in self.plant.ios], dtype=float)
+            box = self.scenario.box()
+            box[p.name] = (min(self._empty, self._part[0]), max(self._empty, self._part[1]))
+            sweep = cycle_sweep(self._start, self.scenario.moves, self.cycle)
+            self.needs = machine_need(self.scenario, box, sweep, "the cycle's moves")
+            """Per axis, the worst motor need over the env's box (the cycle's sweep)."""
+            self.need = worst_need(self.needs)
+            firsts = [axis[0] for axis in self.scenario.moves]
+            self._spec = CoordinatedSpec(
+                tuple(m.max_velocity for m in firsts),
+                tuple(m.max_acceleration for m in firsts),
+                targets=tuple(self._start),
+                settle_s=firsts[0].settle_s,
+            )
+        self._d_ref = np.array([abs(m.distance) for m in firsts])
+        self._limits = [(m.max_velocity, m.max_acceleration) for m in firsts]
         if action_type is None:
             action_type = "unit"
         if center is None and action_type == "residual":
-            from servogym.agents._baselines import nominal_set
-
-            center = nominal_set(self.chip.name, self.scenario.plant)
+            center = default_center(self.chip.name, self.scenario.plant)
         if action_type == "stored":
             action_type = stored_set_actions(self.scenario.chip_model, preset)
         self.actions = make_action_map(
             action_type, self.chip, self.scenario.chip_model, params, fixed,
-            center=center, residual_scale=residual_scale,
+            center=center, residual_scale=residual_scale, axes=self.axes,
         )  # fmt: skip
         self.action_space = self.actions.space
         self._space = self.chip.parameter_space(self.scenario.chip_model)
-        self._n_move = len(MOVE_FEATURES)
-        n_condition = len(CONDITION_FEATURES) if self.condition else 0
-        n = self._n_move + len(STATE_FEATURES) + n_condition + len(self.actions.names)
+        n_axes = 1
+        if self.axes is not None:
+            n_axes = len(self.axes)
+            self._space = {axis_register(a, n): s for a in self.axes
+                           for n, s in self._space.items()}  # fmt: skip
+        self._n_move = len(MOVE_FEATURES) * n_axes
+        n_state = 2 * n_axes + len(STATE_FEATURES) - 2
+        n_condition = (1 + n_axes * (1 if n_axes == 1 else 2)) if self.condition else 0
+        n = self._n_move + n_state + n_condition + len(self.actions.names)
         self.observation_space = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(n,), dtype=np.float64)
-        self._spec = self.scenario.moves[0]
-        self._d_ref = abs(self._spec.distance)
-        self._targets = np.zeros(n_moves)
+        self._targets = np.zeros(n_moves if self.axes is None else (n_moves, n_axes))
         self._k = n_moves
         self._last: tuple[str, Any] | None = None
         self.part_value = self._empty
@@ -309,6 +365,14 @@ class ScheduleEnv(gym.Env):
     # -- the episode's plan ---------------------------------------------------------------
 
     def _profile(self, k: int, params: Any) -> Any:
+        """Move ``k``'s chip profile; on a machine, every axis's (``Commands``: run after
+        ``self.loop.set_params(params)``, which sets the period)."""
+        if self.axes is not None:
+            start = self._start if k == 0 else self._targets[k - 1]
+            spec = dataclasses.replace(
+                self._spec, targets=tuple(self._targets[k]), start_qpos=tuple(start)
+            )
+            return spec.commands(self.loop)
         io = self.plant.io
         start = 0.0 if k == 0 else self._targets[k - 1]
         start_counts = round(start * io.counts_per_unit)
@@ -319,18 +383,26 @@ class ScheduleEnv(gym.Env):
     def _observation(self, features: np.ndarray, values: Mapping[str, int] | None) -> np.ndarray:
         k = self._k
         if k < self.n_moves:
-            prev = 0.0 if k == 0 else self._targets[k - 1]
-            nxt = self._targets[k] - prev
-            v, a = self._spec.max_velocity, self._spec.max_acceleration
-            duration = _trapezoid_time(abs(nxt), v, a) + self._spec.settle_s
+            prev = self._start if k == 0 else np.atleast_1d(self._targets[k - 1])
+            nxt = np.atleast_1d(self._targets[k]) - prev
+            times = [
+                _trapezoid_time(abs(d), v, a) for d, (v, a) in zip(nxt, self._limits, strict=True)
+            ]
+            duration = max(times) + self._spec.settle_s
         else:
-            prev, nxt, duration = self._targets[-1], 0.0, 0.0
-        state = [nxt / self._d_ref, prev / self._d_ref, duration, k / self.n_moves]
+            prev, duration = np.atleast_1d(self._targets[-1]), 0.0
+            nxt = np.zeros_like(prev)
+        # per axis: next distance and position over the axis's scale; then duration, progress
+        state = list(np.column_stack([nxt / self._d_ref, prev / self._d_ref]).ravel())
+        state += [duration, k / self.n_moves]
         if self.condition:
             lo, hi = math.log(self._empty), math.log(max(self._part[1], self._empty))
             load = self.part_value if k % 2 == 1 and k < self.n_moves else self._empty
             t = (math.log(load) - lo) / (hi - lo) if hi > lo else 0.0
-            state += [2.0 * t - 1.0, prev + nxt]
+            state.append(2.0 * t - 1.0)
+            if self.axes is not None:
+                state += list(prev)  # the configuration at the move's start ...
+            state += list(prev + nxt)  # ... and at its end (one axis: the target)
         if values is None:
             last = np.zeros(len(self.actions.names))
         else:
@@ -345,11 +417,19 @@ class ScheduleEnv(gym.Env):
         values = options_plant_values(self.scenario, options, rng)
         lo, hi = self._part
         self.part_value = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-        r0, r1 = self.cycle.reach
-        reach = rng.uniform(r0, r1, size=self.n_moves) * self._d_ref
-        sign = math.copysign(1.0, self._spec.distance)
-        # even moves go to a pick position (below 0), odd ones to a place position (above)
-        self._targets = np.where(np.arange(self.n_moves) % 2 == 0, -reach, reach) * sign
+        even = (np.arange(self.n_moves) % 2 == 0)[:, None]
+        if self.axes is None:
+            r0, r1 = self.cycle.reach
+            reach = rng.uniform(r0, r1, size=self.n_moves) * self._d_ref[0]
+            sign = math.copysign(1.0, self._spec.distance)
+            # even moves go to a pick position (below 0), odd ones to a place position (above)
+            self._targets = np.where(even[:, 0], -reach, reach) * sign
+        else:
+            # even moves go to a pick configuration, odd ones to a place configuration
+            lows = np.where(even, [r[0] for r in self.cycle.pick], [r[0] for r in self.cycle.place])
+            highs = np.where(even, [r[1] for r in self.cycle.pick],
+                             [r[1] for r in self.cycle.place])  # fmt: skip
+            self._targets = rng.uniform(lows, highs)
         values[self.cycle.param] = self._empty
         self.plant.set_params(values)
         self.plant_values = dict(self.plant.values)
@@ -372,30 +452,41 @@ class ScheduleEnv(gym.Env):
         values = self.actions.to_values(action)
         params = self.actions.to_params(action)
         k = self._k
-        profile = self._profile(k, params)
         self.loop.set_params(params)  # the chip's Update: filter state carries over
-        r = self.loop.run(profile, traces=True, reset=k == 0)
+        profile = self._profile(k, params)
+        r, feats = run_move(self.loop, profile, reset=k == 0, settle_s=self._spec.settle_s)
         self._last = (f"move {k}", r)
-        distance = int(profile.position[-1]) - int(profile.start)
-        m = r.metrics
+        metrics = (r.metrics,) if self.axes is None else r.metrics
+        m = metrics[0]
+        diverged = any(x.diverged for x in metrics)
         info = self._info()
-        if m.diverged:
+        if diverged:
             done = (k + m.n_ticks / profile.n_ticks) / self.n_moves
             raw = -DIVERGENCE_PENALTY * (2.0 - done)
             terminated = True
             self._k = self.n_moves
         else:
-            raw = -move_cost(m, distance, self._spec.settle_s, self.scenario.weights)
+            raw = -self._move_cost(r, profile)
             self._k = k + 1
             terminated = self._k >= self.n_moves
             if not terminated:
                 # at rest on the target: pick the part up (after an even move) or put it down
                 value = self.part_value if k % 2 == 0 else self._empty
                 self.plant.set_params({self.cycle.param: value}, keep_state=True)
-        feats = move_features(r, profile, distance, self._spec.settle_s)
         obs = self._observation(feats, values)
-        info.update(cost=-raw, raw_reward=raw, diverged=m.diverged, params=values)
+        info.update(cost=-raw, raw_reward=raw, diverged=diverged, params=values)
         return obs, float(raw * self.reward_scale), terminated, False, info
+
+    def _move_cost(self, r: Any, profile: Any) -> float:
+        """A move's cost (it did not diverge): ``servogym.sim.move_cost``; on a machine the
+        coordinated move's task cost (``servogym.sim.task_cost``: the axes' mean move cost
+        plus the contouring error's terms, docs/cost.md)."""
+        if self.axes is None:
+            distance = int(profile.position[-1]) - int(profile.start)
+            return move_cost(r.metrics, distance, self._spec.settle_s, self.scenario.weights)
+        actual = np.stack([tr.actual for tr in r.traces])
+        error = contour_error(profile, actual, r.metrics[0].n_ticks)
+        return task_cost(r.metrics, profile, error, self.scenario.weights)
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -406,7 +497,19 @@ class ScheduleEnv(gym.Env):
             return np.zeros((64, 64, 3), dtype=np.uint8)
         label, run = self._last
         title = f"{self.scenario.chip_model} on {self.scenario.plant}: {label}"
-        return response_rgb([(label, run)], title=title)
+        runs = [(label, run)] if self.axes is None else axis_runs(label, run, self.axes)
+        return response_rgb(runs, title=title)
+
+
+def default_center(family: str, plant: str) -> Any:
+    """The safe set a residual action acts around by default: the hand-tuned nominal set of
+    a single-axis plant (``servogym.agents.nominal_set``), a machine's per-axis sets
+    (:data:`~servogym.envs._machine.MACHINE_CENTERS`); ``None`` when there is none."""
+    if is_machine(plant):
+        return MACHINE_CENTERS.get((family, plant))
+    from servogym.agents._baselines import nominal_set
+
+    return nominal_set(family, plant)
 
 
 def cycle_need(scenario: Scenario, param: str, empty: float, part: tuple[float, float]) -> Any:

@@ -17,9 +17,16 @@ from servogym.envs._common import (
     markdown_table,
     options_plant_values,
 )
-from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP, move_features, plant_features
-from servogym.plants import get_plant
-from servogym.sim import Evaluator, MoveSpec, Scenario
+from servogym.envs._machine import (
+    axis_runs,
+    evaluation_info,
+    make_evaluator,
+    plant_family,
+    run_move,
+)
+from servogym.envs._observe import MOVE_FEATURES, OBS_CLIP, plant_features
+from servogym.sim import MoveSpec, Scenario
+from servogym.sim._multieval import CoordinatedSpec
 
 IDENT_SCALE = (0.25, 0.5, 0.5)
 """The identification move is the scenario's first move with its distance, velocity limit and
@@ -149,12 +156,14 @@ class TuneEnv(gym.Env):
             chip_model, plant, scenario, plant_values, sample_scale, family, plant_range
         )
         self.chip = self.scenario.chip
-        self.plant_family = get_plant(self.scenario.plant)
-        self.evaluator = Evaluator(self.scenario)  # compiles the plant, once
+        self.plant_family = plant_family(self.scenario.plant)
+        self.axes: tuple[str, ...] | None = getattr(self.scenario, "axes", None)
+        """A multi-axis plant's axis names; ``None`` for a single-axis plant."""
+        self.evaluator = make_evaluator(self.scenario)  # compiles the plant, once
         self.defaults = self.scenario.default_params()
         self.ident_params = self.scenario.params(ident_params) if ident_params else self.defaults
         self.actions = make_action_map(
-            action_type, self.chip, self.scenario.chip_model, params, fixed
+            action_type, self.chip, self.scenario.chip_model, params, fixed, axes=self.axes
         )
         self.action_space = self.actions.space
         if not isinstance(privileged, (bool, np.bool_)):
@@ -163,19 +172,12 @@ class TuneEnv(gym.Env):
                 f"{type(privileged).__name__}."
             )
         self.privileged = bool(privileged)
-        n = len(MOVE_FEATURES)
+        n = len(MOVE_FEATURES) * (1 if self.axes is None else len(self.axes))
         if self.privileged:
             n += len(self.plant_family.randomised())
         self.observation_space = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(n,), dtype=np.float64)
-        first = self.scenario.moves[0]
-        s_d, s_v, s_a = IDENT_SCALE
-        self.ident_move = MoveSpec(
-            first.distance * s_d, first.max_velocity * s_v, first.max_acceleration * s_a,
-            first.settle_s,
-        )  # fmt: skip
-        io = self.evaluator.plant.io
-        dt = self.chip.sample_time_s(self.ident_params)
-        self._ident_profile = self.chip.profile(self.ident_move.to_move(io.counts_per_unit), dt)
+        self.ident_move = identification_move(self.scenario)
+        self._ident_profile = self._plan_identification()
         self._plant_values: dict[str, float] = {}
         self._last: tuple[str, Any] | None = None
         self._needs_reset = True
@@ -190,10 +192,7 @@ class TuneEnv(gym.Env):
         self._plant_values = dict(plant.values)
         loop = self.evaluator.loop
         loop.set_params(self.ident_params)
-        prof = self._ident_profile
-        r = loop.run(prof, traces=True, reset=True)
-        distance = int(prof.position[-1]) - int(prof.start)
-        obs = move_features(r, prof, distance, self.ident_move.settle_s)
+        r, obs = run_move(loop, self._ident_profile, reset=True, settle_s=self.ident_move.settle_s)
         if self.privileged:
             obs = np.concatenate([obs, plant_features(self.plant_family, self._plant_values)])
         self._last = ("identification", r)
@@ -214,8 +213,7 @@ class TuneEnv(gym.Env):
             "raw_reward": -float(ev.cost),
             "diverged": ev.diverged,
             "params": values,
-            "max_following_error": ev.max_following_error,
-            "saturation_fraction": ev.saturation_fraction,
+            **evaluation_info(ev),
             "plant_values": dict(self._plant_values),
         }
         return obs, -float(ev.cost) * self.reward_scale, True, False, info
@@ -229,7 +227,38 @@ class TuneEnv(gym.Env):
             raise RuntimeError("call reset() before render()")
         label, run = self._last
         title = f"{self.scenario.chip_model} on {self.scenario.plant}: {label}"
-        return response_rgb([(label, run)], title=title)
+        runs = [(label, run)] if self.axes is None else axis_runs(label, run, self.axes)
+        return response_rgb(runs, title=title)
+
+    def _plan_identification(self) -> Any:
+        """The identification move's chip profile (a machine: every axis's, ``Commands``)."""
+        if self.axes is None:
+            io = self.evaluator.plant.io
+            dt = self.chip.sample_time_s(self.ident_params)
+            return self.chip.profile(self.ident_move.to_move(io.counts_per_unit), dt)
+        loop = self.evaluator.loop
+        loop.set_params(self.ident_params)
+        return self.ident_move.commands(loop)
+
+
+def identification_move(scenario: Any) -> MoveSpec | CoordinatedSpec:
+    """The scenario's first move with its distance, velocity limit and acceleration limit
+    scaled by :data:`IDENT_SCALE`, the same settle time; on a machine, every axis's first
+    default move so scaled, run together from the start position (a coordinated move)."""
+    s_d, s_v, s_a = IDENT_SCALE
+    if isinstance(scenario, Scenario):
+        first = scenario.moves[0]
+        return MoveSpec(
+            first.distance * s_d, first.max_velocity * s_v, first.max_acceleration * s_a,
+            first.settle_s,
+        )  # fmt: skip
+    firsts = [axis[0] for axis in scenario.moves]
+    return CoordinatedSpec(
+        tuple(m.max_velocity * s_v for m in firsts),
+        tuple(m.max_acceleration * s_a for m in firsts),
+        targets=tuple(m.distance * s_d for m in firsts),
+        settle_s=firsts[0].settle_s,
+    )
 
 
 def observation_table() -> str:

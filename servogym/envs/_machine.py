@@ -1,0 +1,425 @@
+"""The envs on a multi-axis machine: every axis of one controller around one plant.
+
+The env classes take a single-axis plant family (:data:`servogym.plants.PLANTS`) or a
+multi-axis one (:data:`servogym.plants.MULTI_PLANTS`: ``two-link-arm``, ``xy-stage``). On a
+multi-axis plant their components are the ones here: a :class:`MachineScenario` (the chip,
+the plant's instance distribution and the tasks of :class:`servogym.sim.MultiEvaluator`),
+a :class:`MachineCycle` (the gain-scheduling env's pick and place configurations), the
+per-axis safe sets the residual action acts around (:data:`MACHINE_CENTERS`), and the
+action of every axis side by side (:class:`servogym.envs.AxesActions`, register names
+``<axis>.<register>``). With one axis, the envs run exactly as before.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from servogym.chips._family import get_chip
+from servogym.plants import MULTI_PLANTS, PEAK_HEADROOM, MotorFeasibilityError, get_plant
+from servogym.sim._multieval import DEFAULT_TASKS, MultiCostWeights
+from servogym.sim._scenario import MoveSpec
+
+AXIS_SEPARATOR = "."
+"""Between an axis's name and a register's in the names of a multi-axis action
+(``shoulder.kp``, ``x.proportional_gain``)."""
+
+
+def is_machine(plant: str) -> bool:
+    """Whether ``plant`` names a multi-axis plant family."""
+    return isinstance(plant, str) and plant in MULTI_PLANTS
+
+
+def plant_family(plant: str) -> Any:
+    """The single-axis or multi-axis plant family called ``plant`` (an unknown name raises
+    as :func:`servogym.plants.get_plant`)."""
+    return MULTI_PLANTS[plant] if is_machine(plant) else get_plant(plant)
+
+
+def axis_register(axis: str, name: str) -> str:
+    """A register's name on one axis of a machine: ``axis_register("elbow", "kp")`` is
+    ``"elbow.kp"``."""
+    return f"{axis}{AXIS_SEPARATOR}{name}"
+
+
+def per_axis(
+    values: Mapping[str, Any] | Sequence[Mapping[str, Any] | None] | None,
+    axes: Sequence[str],
+    what: str,
+) -> list[dict[str, Any]]:
+    """``values`` split by axis.
+
+    A sequence gives one mapping per axis; in a mapping, a name ``<axis>.<register>`` goes to
+    that axis and a plain register name to every axis (an axis's own entry wins).
+
+    Raises:
+        ValueError: naming ``what``, for a sequence of another length or an unknown axis.
+    """
+    n = len(axes)
+    if values is None:
+        return [{} for _ in axes]
+    if isinstance(values, Sequence) and not isinstance(values, str | bytes):
+        if len(values) != n:
+            raise ValueError(
+                f"{what} must give one mapping per axis ({n}: {', '.join(axes)}); got "
+                f"{len(values)}."
+            )
+        return [dict(v or {}) for v in values]
+    if not isinstance(values, Mapping):
+        raise ValueError(
+            f"{what} must be a mapping of register values (a name '<axis>.<register>' sets one "
+            f"axis, a plain name every axis) or one mapping per axis; got {what}={values!r}."
+        )
+    out: list[dict[str, Any]] = [{} for _ in axes]
+    qualified = []
+    for key, value in values.items():
+        axis, sep, name = str(key).partition(AXIS_SEPARATOR)
+        if not sep:
+            for d in out:
+                d[key] = value
+            continue
+        if axis not in axes:
+            raise ValueError(
+                f"{what} names axis {axis!r} in {key!r}; the axes are {', '.join(axes)} "
+                f"(names are '<axis>{AXIS_SEPARATOR}<register>')."
+            )
+        qualified.append((axes.index(axis), name, value))
+    for k, name, value in qualified:
+        out[k][name] = value
+    return out
+
+
+def machine_fixed(chip_model: str, n_axes: int) -> dict[str, int]:
+    """The registers a machine of ``n_axes`` holds away from the chip's defaults (a PMD
+    chip's ``sample_time_us``, time-sliced per enabled axis: ``servogym.sim.machine_params``)."""
+    from servogym.sim._machine import machine_params
+
+    chip, model = get_chip(chip_model)
+    space = chip.parameter_space(model)
+    machine = machine_params(model, n_axes)[0]
+    default = chip.make_params(model)
+    return {n: getattr(machine, n) for n in space if getattr(machine, n) != getattr(default, n)}
+
+
+@dataclasses.dataclass(frozen=True)
+class MachineScenario:
+    """What a multi-axis env evaluates: the single-axis :class:`servogym.sim.Scenario`'s
+    counterpart on a machine (``two-link-arm``, ``xy-stage``).
+
+    Attributes:
+        chip_model: Chip model name (any family); one controller drives every axis.
+        plant: Multi-axis plant family name.
+        plant_values: Fixed plant parameters; the rest are nominal or drawn.
+        randomise: Whether each episode draws a plant instance.
+        sample_scale: Width of the distribution (0 = nominal, 1 = the default sampling
+            ranges).
+        plant_ranges: ``name -> (low, high)`` the draws take a parameter from.
+        tasks: The tasks of :class:`~servogym.sim.MultiEvaluator`; ``()``: the plant's
+            :data:`~servogym.sim.DEFAULT_TASKS`.
+        weights: The task cost's weights (docs/cost.md, "Multi-axis machines").
+        integrator, substeps, assumptions: As for :class:`~servogym.sim.MultiServoLoop`.
+        motor_check: Refuse, on construction, a box of instances (:meth:`box`) whose
+            motors cannot run the plant's default moves (:func:`machine_need`).
+    """
+
+    chip_model: str
+    plant: str
+    plant_values: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    randomise: bool = False
+    sample_scale: float = 1.0
+    plant_ranges: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    tasks: tuple[Any, ...] = ()
+    weights: MultiCostWeights = dataclasses.field(default_factory=MultiCostWeights)
+    integrator: str = "rk4"
+    substeps: int | None = None
+    assumptions: Any = None
+    motor_check: bool = True
+
+    def __post_init__(self) -> None:
+        _, model = get_chip(self.chip_model)
+        object.__setattr__(self, "chip_model", model)
+        family = self.family
+        family.validate(dict(self.plant_values))
+        ranges = family.validate_ranges(
+            self.plant_ranges, option="plant_range", fixed=self.plant_values
+        )
+        object.__setattr__(self, "plant_ranges", ranges)
+        if not self.tasks:
+            object.__setattr__(self, "tasks", DEFAULT_TASKS[self.plant])
+        if self.motor_check:
+            machine_need(self, self.box(), self.moves, "the plant's default moves")
+
+    @property
+    def chip(self) -> Any:
+        """The chip family."""
+        return get_chip(self.chip_model)[0]
+
+    @property
+    def family(self) -> Any:
+        """The multi-axis plant family."""
+        return MULTI_PLANTS[self.plant]
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The axis names, in axis order."""
+        return tuple(self.family.axes)
+
+    @property
+    def moves(self) -> tuple[tuple[MoveSpec, ...], ...]:
+        """Per axis, the plant family's default moves (joint units)."""
+        return self.family.default_moves()
+
+    def default_params(self) -> list[Any]:
+        """The chip's default set on every axis, the period set for the axes
+        (``servogym.sim.machine_params``)."""
+        return self.params(None)
+
+    def params(self, values: Any = None) -> list[Any]:
+        """One parameter set per axis: the machine's defaults updated with ``values`` (as
+        :func:`per_axis` splits them).
+
+        Raises:
+            ParameterError: for an illegal value or sets one controller cannot hold.
+        """
+        from servogym.sim._machine import machine_params
+
+        split = per_axis(values, self.axes, "params")
+        return machine_params(self.chip_model, len(self.axes), split)
+
+    def draw_plant(self, rng: np.random.Generator) -> dict[str, float]:
+        """A plant instance, as :meth:`servogym.sim.Scenario.draw_plant` draws one."""
+        family = self.family
+        if self.randomise:
+            values = family.sample(rng, self.sample_scale, ranges=self.plant_ranges)
+        else:
+            values = family.nominal()
+        values.update(self.plant_values)
+        return values
+
+    def box(self) -> dict[str, tuple[float, float]]:
+        """The ranges a draw takes the parameters from (the fixed ones left out)."""
+        if not self.randomise:
+            return dict(self.plant_ranges)
+        box = self.family.sample_bounds(self.sample_scale, ranges=self.plant_ranges)
+        for name in self.plant_values:
+            box.pop(name, None)
+        return box
+
+
+@dataclasses.dataclass(frozen=True)
+class MachineCycle:
+    """The pick-and-place cycle of a gain-scheduling episode on a machine.
+
+    As :class:`~servogym.envs.PickAndPlace`: even moves (0, 2, ...) run empty to a pick
+    configuration, odd moves carry the part to a place configuration; one part value per
+    episode, log-uniform over ``part``. Each target configuration is drawn per axis,
+    uniformly over that axis's range (joint units); every move is a coordinated move
+    (``servogym.sim.CoordinatedSpec``) at each axis's velocity and acceleration limits of
+    the plant family's first default move.
+
+    Attributes:
+        param: The plant parameter the part changes.
+        empty: Its value without a part (> 0: the observation maps it on a log scale).
+        part: Range of its value with the part.
+        pick: Per axis, ``(low, high)`` of the pick configurations (rad or m).
+        place: Per axis, ``(low, high)`` of the place configurations (rad or m).
+    """
+
+    param: str
+    empty: float
+    part: tuple[float, float]
+    pick: tuple[tuple[float, float], ...]
+    place: tuple[tuple[float, float], ...]
+
+    def span(self, k: int) -> tuple[float, float]:
+        """Axis ``k``'s lowest and highest target."""
+        return min(self.pick[k][0], self.place[k][0]), max(self.pick[k][1], self.place[k][1])
+
+
+MACHINE_CYCLES: dict[str, MachineCycle] = {
+    "two-link-arm": MachineCycle(
+        "payload_kg",
+        empty=0.05,
+        part=(0.5, 2.0),
+        pick=((-1.0, -0.2), (-2.0, 2.0)),
+        place=((0.2, 1.0), (-2.0, 2.0)),
+    ),
+    "xy-stage": MachineCycle(
+        "payload_kg",
+        empty=0.2,
+        part=(2.0, 10.0),
+        pick=((-0.12, -0.02), (-0.08, 0.08)),
+        place=((0.02, 0.12), (-0.08, 0.08)),
+    ),
+}
+"""The gain-scheduling cycle of each multi-axis plant. Two-link arm: the payload from an
+empty gripper (0.05 kg) to 0.5-2 kg (the default sampling range's end), the shoulder picking
+on one side and placing on the other, the elbow anywhere in +-2 rad, so that the shoulder's
+inertia changes several-fold with the elbow angle from move to move. X-Y stage: 0.2 kg to
+2-10 kg, X picking on one side and placing on the other, Y anywhere in +-80 mm."""
+
+MACHINE_CENTERS: dict[tuple[str, str], tuple[dict[str, int], ...]] = {}
+"""(chip family, multi-axis plant) -> per axis, the register values of a safe set: the zero
+action of the Schedule ids' residual action (docs/envs.md says how each was found)."""
+
+
+def cycle_sweep(
+    starts: Sequence[float], moves: Sequence[Sequence[MoveSpec]], cycle: MachineCycle
+) -> tuple[tuple[MoveSpec, ...], ...]:
+    """Per axis, two moves from its start position (``starts``, rad or m) over the cycle's
+    whole span, at the limits of the axis's first move in ``moves``: what
+    :func:`machine_need` evaluates the plant along."""
+    out = []
+    for k, (start, axis_moves) in enumerate(zip(starts, moves, strict=True)):
+        lo, hi = cycle.span(k)
+        v, a = axis_moves[0].max_velocity, axis_moves[0].max_acceleration
+        out.append((MoveSpec(lo - start, v, a), MoveSpec(hi - lo, v, a)))
+    return tuple(out)
+
+
+def machine_need(
+    scenario: MachineScenario,
+    box: Mapping[str, tuple[float, float]],
+    moves: tuple[tuple[MoveSpec, ...], ...],
+    what: str,
+) -> tuple[Any, ...]:
+    """Per axis, the largest motor need over every corner of ``box`` (the other parameters
+    at the scenario's fixed or nominal values) along ``moves``
+    (``servogym.plants._multi.required_peak_efforts``); computed once per process for a
+    plant, box and moves.
+
+    Raises:
+        MotorFeasibilityError: in one line, naming the axis, the corner, the need and the
+            motor's peak, when an axis needs more than :data:`PEAK_HEADROOM` of its peak.
+    """
+    base = scenario.family.validate(dict(scenario.plant_values))
+    needs, corners = _worst_needs(
+        scenario.plant,
+        tuple(sorted(base.items())),
+        tuple(sorted((k, tuple(v)) for k, v in box.items())),
+        moves,
+    )
+    for need, corner in zip(needs, corners, strict=True):
+        if not need.feasible:
+            at = ", ".join(f"{k}={v:.6g}" for k, v in corner.items()) or "its nominal values"
+            raise MotorFeasibilityError(
+                f"the {need.family} motor cannot move {what} at {at}: it needs "
+                f"{need.total_nm:.3g} of its {need.peak_nm:.3g} peak ({need.fraction:.0%}; at "
+                f"most {PEAK_HEADROOM:.0%} leaves the feedback its share); narrow the ranges."
+            )
+    return needs
+
+
+@functools.lru_cache(maxsize=64)
+def _worst_needs(plant: str, base: tuple, box: tuple, moves: tuple) -> tuple[tuple, tuple]:
+    from servogym.plants._multi import required_peak_efforts
+
+    family = MULTI_PLANTS[plant]
+    values = dict(base)
+    built = family.build(values)
+    names = [n for n, _ in box]
+    worst: list[Any] = [None] * family.n_axes
+    corners: list[dict[str, float]] = [{} for _ in range(family.n_axes)]
+    for corner in itertools.product(*[sorted(set(r)) for _, r in box]):
+        at = dict(zip(names, corner, strict=True))
+        needs = required_peak_efforts(family, {**values, **at}, moves, plant=built)
+        for k, need in enumerate(needs):
+            if worst[k] is None or need.fraction > worst[k].fraction:
+                worst[k], corners[k] = need, at
+    return tuple(worst), tuple(corners)
+
+
+def worst_need(needs: Sequence[Any]) -> Any:
+    """The axis need with the largest share of its motor's peak."""
+    return max(needs, key=lambda n: n.fraction)
+
+
+def axis_runs(label: str, run: Any, axes: Sequence[str]) -> list[tuple[str, Any]]:
+    """Per axis, a labelled run that ``servogym.sim._plot.response_rgb`` draws: from a
+    :class:`~servogym.sim.MultiEpisodeResult` (one move) or a
+    :class:`~servogym.sim.MultiEvaluation` (its tasks one after the other)."""
+    from types import SimpleNamespace
+
+    from servogym.sim._runner import EpisodeResult
+
+    episodes = [t for t in getattr(run, "tasks", ())] or [run]
+    return [
+        (
+            f"{label}, {axis}",
+            SimpleNamespace(results=[EpisodeResult(e.metrics[k], e.traces[k]) for e in episodes]),
+        )
+        for k, axis in enumerate(axes)
+    ]
+
+
+def make_evaluator(scenario: Any) -> Any:
+    """The evaluator of an env's scenario: :class:`servogym.sim.Evaluator` of a
+    :class:`~servogym.sim.Scenario`, :class:`servogym.sim.MultiEvaluator` of a
+    :class:`MachineScenario` (its plant compiled once, at the instance of seed 0)."""
+    from servogym.sim import Evaluator
+    from servogym.sim._multieval import MultiEvaluator
+
+    if not isinstance(scenario, MachineScenario):
+        return Evaluator(scenario)
+    return MultiEvaluator(
+        scenario.plant,
+        scenario.chip_model,
+        scenario.tasks,
+        plant_values=scenario.draw_plant(np.random.default_rng(0)),
+        weights=scenario.weights,
+        assumptions=scenario.assumptions,
+        integrator=scenario.integrator,
+        substeps=scenario.substeps,
+    )
+
+
+def evaluation_info(ev: Any) -> dict[str, float]:
+    """What a Tune step's ``info`` reports of an evaluation beyond its cost: the largest
+    following error (counts) and the share of ticks at the motor limit; of a
+    :class:`~servogym.sim.MultiEvaluation`, over every task and axis, and its largest
+    contouring error (``max_contour_error_um``)."""
+    if not hasattr(ev, "tasks"):
+        return {
+            "max_following_error": ev.max_following_error,
+            "saturation_fraction": ev.saturation_fraction,
+        }
+    metrics = [m for t in ev.tasks for m in t.metrics]
+    ticks = sum(m.n_ticks for m in metrics)
+    return {
+        "max_following_error": max(m.max_following_error for m in metrics),
+        "saturation_fraction": sum(m.saturation_fraction * m.n_ticks for m in metrics)
+        / max(ticks, 1),
+        "max_contour_error_um": float(ev.max_contour_error_um),
+    }
+
+
+def run_move(loop: Any, planned: Any, *, reset: bool, settle_s: float) -> tuple[Any, np.ndarray]:
+    """Run one move with traces; return the run and its observed features.
+
+    ``planned`` is a chip profile on a :class:`~servogym.sim.ServoLoop` (the features are
+    :data:`~servogym.envs.MOVE_FEATURES`), or a machine's
+    :class:`~servogym.sim._contour.Commands` on a :class:`~servogym.sim.MultiServoLoop`
+    (every axis's features, in axis order; with ``reset`` the machine starts at rest at the
+    commands' start positions).
+    """
+    from servogym.envs._observe import move_features
+    from servogym.sim._runner import EpisodeResult
+
+    if not hasattr(planned, "profiles"):
+        r = loop.run(planned, traces=True, reset=reset)
+        distance = int(planned.position[-1]) - int(planned.start)
+        return r, move_features(r, planned, distance, settle_s)
+    r = loop.run(
+        list(planned.profiles), start_counts=planned.start_counts,
+        start_qpos=planned.start_qpos if reset else None, traces=True, reset=reset,
+    )  # fmt: skip
+    feats = [
+        move_features(EpisodeResult(m, tr), p, int(p.position[-1]) - int(p.start), settle_s)
+        for m, tr, p in zip(r.metrics, r.traces, planned.profiles, strict=True)
+    ]
+    return r, np.concatenate(feats)
