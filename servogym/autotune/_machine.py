@@ -538,7 +538,8 @@ class MachineProblem(TuneProblem):
 
     The constraints, per axis: ``max_following_error.<axis>`` (counts over the axis's
     limit: ``constraints.max_following_error``, or 1 % of the axis's largest commanded span
-    over the tasks, at least 1 count), ``saturation_fraction.<axis>``, and ``diverged``.
+    over the tasks, of the largest axis's for an axis that does not move: the multi-axis
+    check's rule), ``saturation_fraction.<axis>``, and ``diverged``.
     Margin constraints are refused (the search does not compute the machine's margins).
     """
 
@@ -581,7 +582,8 @@ class MachineProblem(TuneProblem):
         """Per axis, its following-error limit (counts)."""
         if self.constraints.max_following_error is not None:
             return (float(self.constraints.max_following_error),) * self.n_axes
-        return tuple(max(0.01 * s, 1.0) for s in evaluator.axis_spans())
+        spans = evaluator.axis_spans()
+        return tuple(0.01 * (s if s > 0 else max(spans)) for s in spans)
 
     def constraint_values(
         self, outcome: MachineOutcome, fe_limit: Sequence[float]
