@@ -381,7 +381,9 @@ def tune_command(
             "Raise the budget or relax --max-following-error / --max-saturation."
         )
     if report is not None:
-        console.print(check_table(report))
+        console.print(
+            check_table(report) if "n_axes" not in summary else machine_check_table(report)
+        )
         line = fallback_line(report)
         if line:
             console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
@@ -500,6 +502,45 @@ def check_table(report: dict):
             _margin(m.get("phase_margin_deg"), "deg") if m else "-",
             "[green]ok[/green]" if c.get("passed", True) else "[red]fail[/red]",
         )  # fmt: skip
+    return table
+
+
+def machine_check_table(report: dict):
+    """A machine's check (``servogym.sim.check_machine_params``): each stress case's axes,
+    their following error, saturation and margins with the other loops closed, the
+    contouring error and the verdict; the worst margins of each axis in the title."""
+    from rich.table import Table
+
+    limits = report["limits"]
+    verdict = "[green]passed[/green]" if report["passed"] else "[red]FAILED[/red]"
+    worst = []
+    for axis, w in (report.get("worst") or {}).items():
+        gm, pm = w.get("gain_margin_db", {}), w.get("phase_margin_deg", {})
+        worst.append(f"{axis} {_margin(gm.get('value'), 'dB')} ({gm.get('case', '-')}), "
+                     f"{_margin(pm.get('value'), 'deg')} ({pm.get('case', '-')})")  # fmt: skip
+    title = (
+        f"check {verdict}: worst margins with the other loops closed: {'; '.join(worst)} "
+        f"(minima {limits['min_gain_margin_db']:g} dB, {limits['min_phase_margin_deg']:g} deg; "
+        f"saturation at most {100 * limits['max_saturation']:g} % of ticks)"
+    )
+    table = Table(title=title, title_justify="left")
+    table.add_column("case (RK4 reference)", no_wrap=True)
+    for col in ("latency / sequencing", "cost", "contour (um)", "axis", "error", "at limit",
+                "GM", "PM", "verdict"):  # fmt: skip
+        table.add_column(col, justify="right", no_wrap=col != "case (RK4 reference)")
+    for c in report["cases"]:
+        for j, a in enumerate(c["axes"]):
+            m = a.get("margins") or {}
+            first = j == 0
+            table.add_row(
+                c["name"] if first else "", f"{c['loop_latency']} / {c['sequencing']}" if first
+                else "", (_fmt(c["cost"]) + (" diverged" if c["diverged"] else "")) if first
+                else "", _fmt(c["max_contour_error_um"]) if first else "", a["axis"],
+                f"{_fmt(a['max_following_error'])} / {_fmt(a['following_error_limit'])}",
+                f"{100 * a['saturation_fraction']:.1f} %",
+                _margin(m.get("gain_margin_db"), "dB"), _margin(m.get("phase_margin_deg"), "deg"),
+                ("[green]ok[/green]" if c["passed"] else "[red]fail[/red]") if first else "",
+            )  # fmt: skip
     return table
 
 

@@ -305,8 +305,8 @@ class TuneConfig:
     def machine_problem(self) -> Any:
         """The :class:`~servogym.autotune._machine.MachineProblem` of a multi-axis plant:
         every axis's registers searched together (``--search``/``--fix`` names ``kp.2`` for
-        one axis, ``kp`` for every axis), the constraints per axis, no margin constraint
-        (the multi-axis check applies the margins)."""
+        one axis, ``kp`` for every axis), the constraints per axis (margins at the
+        scenario's own timing; the check tries every latency and sequencing choice)."""
         from servogym.autotune._machine import MachineProblem, MachineScenario, MachineSpace
         from servogym.autotune._problem import DEFAULT_MULTI_OBJECTIVES
 
@@ -330,8 +330,8 @@ class TuneConfig:
                 enabled=self.constraints,
                 max_following_error=self.max_following_error,
                 max_saturation=self.max_saturation,
-                min_gain_margin_db=None,
-                min_phase_margin_deg=None,
+                min_gain_margin_db=self.min_gain_margin_db,
+                min_phase_margin_deg=self.min_phase_margin_deg,
             ),
             objectives=DEFAULT_MULTI_OBJECTIVES if self.multi_objective else ("cost",),
             seed=self.seed,
@@ -482,12 +482,46 @@ def check_candidates(result: StudyResult, config: TuneConfig) -> tuple[StudyResu
             "written_cost": cost,
             "cost_ratio": cost / best_cost if best_cost > 0 else None,
         }
-    report = dataclasses.replace(report, candidates=tuple(checked), fallback=fallback)
+    if isinstance(report, CheckReport):
+        report = dataclasses.replace(report, candidates=tuple(checked), fallback=fallback)
+    else:  # a machine's report (servogym.sim.MachineCheckReport)
+        report = CheckedChoice(report, tuple(checked), fallback)
     chosen_result = dataclasses.replace(
         result, best=trial, best_values=values, best_params=params,
         feasible=is_feasible(trial),
     )  # fmt: skip
     return chosen_result, report
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckedChoice:
+    """A check report that has no place for the tune's choice (a machine's,
+    ``servogym.sim.MachineCheckReport``), with that choice beside it.
+
+    Attributes:
+        report: The chosen set's report.
+        candidates: Each trial checked, its cost, whether it passed and why not.
+        fallback: As :attr:`servogym.sim.CheckReport.fallback`.
+    """
+
+    report: Any
+    candidates: tuple[dict[str, Any], ...] = ()
+    fallback: dict[str, Any] | None = None
+
+    @property
+    def passed(self) -> bool:
+        """Whether the chosen set passed."""
+        return bool(self.report.passed)
+
+    @property
+    def failures(self) -> tuple[str, ...]:
+        """The chosen set's failures."""
+        return tuple(self.report.failures)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report's JSON with ``candidates`` and ``fallback``."""
+        return {**self.report.to_dict(), "candidates": list(self.candidates),
+                "fallback": self.fallback}  # fmt: skip
 
 
 def parse_plant_params(items: list[str] | None) -> dict[str, int | float]:

@@ -15,9 +15,12 @@ the same interface, so the session, the stored study, the Optuna tuners and the 
   :class:`MachineEvaluator` runs it through :class:`~servogym.sim._multieval.MultiEvaluator`
   (cost: the mean task cost, contouring error included, docs/cost.md).
 * The constraints are the single-axis tune's, per axis: following error and saturation of
-  each axis (``max_following_error.1``, ``saturation_fraction.2``), and divergence. The loop
-  margins are not constrained during the search; the multi-axis check
-  (``servogym.sim._multicheck``) decides them before a set is written.
+  each axis (``max_following_error.1``, ``saturation_fraction.2``), divergence, and each
+  loop's gain and phase margins with the other loops closed (``gain_margin.1``,
+  ``phase_margin.2``; ``servogym.sim._multicheck.machine_margins``, the worst over the
+  tasks' start and end configurations) at the scenario's own loop latency and sequencing.
+  The multi-axis check (``servogym.sim.check_machine_params``) then tries every latency and
+  sequencing choice and the load and friction spreads before a set is written.
 
 See docs/autotune.md, "Multi-axis machines".
 """
@@ -32,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from servogym.autotune._problem import Constraints, Outcome, TuneProblem, aggregate
+from servogym.autotune._problem import MARGIN_CONSTRAINT_BOUND, Outcome, TuneProblem, aggregate
 from servogym.autotune._space import UNIT_PREFIX
 from servogym.chips._axes import PERIOD_PER_AXIS, MultiAxisParams, max_axes
 from servogym.chips._family import ChipFamily, get_chip
@@ -40,10 +43,6 @@ from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
 
 AXIS_SEP = "."
 """Separator of a register and its axis number in a per-axis name (``kp.2``)."""
-
-MACHINE_CONSTRAINTS = Constraints(min_gain_margin_db=None, min_phase_margin_deg=None)
-"""The constraints of a machine's search by default: following error, saturation and
-divergence, no margins (the multi-axis check decides them)."""
 
 
 def axis_name(register: str, axis: int) -> str:
@@ -306,6 +305,8 @@ class MachineScenario:
         sequencing: The family's axis-sequencing choice (``servogym.sim.SEQUENCING``).
         contour_mode: The family's contour mode (``servogym.sim._contour.CONTOUR_MODES``).
         plant_ranges: ``name -> (low, high)`` a randomised draw takes a parameter from.
+        margins: Whether each evaluation also computes every loop's margins with the other
+            loops closed, at the scenario's latency and sequencing (margin constraints).
     """
 
     chip_model: str
@@ -321,6 +322,7 @@ class MachineScenario:
     sequencing: str | None = None
     contour_mode: str | None = None
     plant_ranges: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    margins: bool = False
 
     def __post_init__(self) -> None:
         from servogym.plants import MULTI_PLANTS
@@ -403,7 +405,11 @@ class MachineEvaluation:
         max_contour_error_um, rms_contour_error_um: Largest and RMS (worst task)
             contouring error (um).
         run: The :class:`~servogym.sim._multieval.MultiEvaluation`.
-        margins: Not computed (``None``).
+        axis_gain_margin_db, axis_phase_margin_deg: Per axis, its loop's smallest margins
+            with the other loops closed over the operating configurations (``inf``: not
+            computed or unbounded; <= 0 when the machine's loop is unstable).
+        stable: Whether the machine's closed loop is stable at every configuration.
+        margins: ``None`` (the single-axis margins; the per-axis ones above instead).
     """
 
     cost: float
@@ -416,11 +422,15 @@ class MachineEvaluation:
     max_contour_error_um: float
     rms_contour_error_um: float
     run: Any = None
+    axis_gain_margin_db: tuple[float, ...] = ()
+    axis_phase_margin_deg: tuple[float, ...] = ()
+    stable: bool = True
     margins: Any = None
 
 
-def machine_evaluation(run: Any) -> MachineEvaluation:
-    """The figures of a :class:`~servogym.sim._multieval.MultiEvaluation`."""
+def machine_evaluation(run: Any, margins: Any = None) -> MachineEvaluation:
+    """The figures of a :class:`~servogym.sim._multieval.MultiEvaluation` (and of its
+    :class:`~servogym.sim._multicheck.MachineMargins`, when computed)."""
     n = len(run.tasks[0].metrics)
     fe = tuple(float(max(t.metrics[k].max_following_error for t in run.tasks)) for k in range(n))
     sat = []
@@ -439,7 +449,17 @@ def machine_evaluation(run: Any) -> MachineEvaluation:
         max_contour_error_um=float(max(t.contour.max_um for t in run.tasks)),
         rms_contour_error_um=float(max(t.contour.rms_um for t in run.tasks)),
         run=run,
+        axis_gain_margin_db=_worst(margins, "gain_margin_db", n),
+        axis_phase_margin_deg=_worst(margins, "phase_margin_deg", n),
+        stable=True if margins is None else bool(margins.stable),
     )
+
+
+def _worst(margins: Any, name: str, n: int) -> tuple[float, ...]:
+    if margins is None:
+        return (math.inf,) * n
+    return tuple(float(min(getattr(per[k].margins, name) for per in margins.analyses))
+                 for k in range(n))  # fmt: skip
 
 
 class MachineEvaluator:
@@ -460,6 +480,7 @@ class MachineEvaluator:
             sequencing=scenario.sequencing, contour_mode=scenario.contour_mode,
             integrator=scenario.integrator, substeps=scenario.substeps,
         )  # fmt: skip
+        self._linear: dict = {}  # continuous models per plant instance and configuration
 
     @property
     def plant(self) -> Any:
@@ -470,8 +491,22 @@ class MachineEvaluator:
         self, params: Any, plant_values: Mapping[str, float] | None = None, *, traces: bool = False
     ) -> MachineEvaluation:
         """The sets ``params`` (one per axis) on one plant instance (the current one when
-        ``None``)."""
-        return machine_evaluation(self.multi.evaluate(params, plant_values, traces=traces))
+        ``None``); with ``scenario.margins``, every loop's margins too."""
+        run = self.multi.evaluate(params, plant_values, traces=traces)
+        return machine_evaluation(run, self.margins() if self.scenario.margins else None)
+
+    def margins(self) -> Any:
+        """Every loop's margins with the others closed, of the sets last evaluated, at the
+        tasks' start and end configurations (``servogym.sim._multicheck.machine_margins``,
+        at the loop's own latencies)."""
+        from servogym.sim._multicheck import machine_margins, operating_configurations
+
+        loop = self.multi.loop
+        return machine_margins(
+            self.multi.chip, loop.params, loop.assumptions, self.plant,
+            operating_configurations(self.multi.commands()), loop.latencies_s,
+            cache=self._linear,
+        )  # fmt: skip
 
     def axis_spans(self) -> tuple[int, ...]:
         """Per axis, the largest span of its commanded position over the tasks (counts)."""
@@ -502,15 +537,30 @@ class MachineOutcome(Outcome):
     axis_saturation: tuple[float, ...] = ()
     max_contour_error_um: float = math.nan
     rms_contour_error_um: float = math.nan
+    axis_gain_margin_db: tuple[float | None, ...] = ()
+    axis_phase_margin_deg: tuple[float | None, ...] = ()
+
+    def to_attrs(self) -> dict[str, Any]:
+        """JSON-ready (an unbounded margin as ``None``)."""
+        out = super().to_attrs()
+        for name in ("axis_gain_margin_db", "axis_phase_margin_deg"):
+            out[name] = [x if x is not None and math.isfinite(x) else None for x in out[name]]
+        return out
 
     @classmethod
     def from_attrs(cls, attrs: Mapping[str, Any]) -> MachineOutcome:
-        """Inverse of :meth:`Outcome.to_attrs`."""
+        """Inverse of :meth:`to_attrs`."""
         out = super().from_attrs(attrs)
+
+        def floats(xs: Any) -> tuple[float, ...]:
+            return tuple(math.inf if x is None else float(x) for x in xs)
+
         return dataclasses.replace(
             out,
-            axis_following_error=tuple(float(x) for x in out.axis_following_error),
-            axis_saturation=tuple(float(x) for x in out.axis_saturation),
+            axis_following_error=floats(out.axis_following_error),
+            axis_saturation=floats(out.axis_saturation),
+            axis_gain_margin_db=floats(out.axis_gain_margin_db),
+            axis_phase_margin_deg=floats(out.axis_phase_margin_deg),
         )
 
 
@@ -520,8 +570,16 @@ def aggregate_machine(
     """:func:`~servogym.autotune._problem.aggregate` plus each axis's worst figures."""
     base = aggregate(values, evaluations, mode)
     n = len(evaluations[0].axis_following_error)
+    gm = tuple(min(e.axis_gain_margin_db[k] for e in evaluations) for k in range(n))
+    pm = tuple(min(e.axis_phase_margin_deg[k] for e in evaluations) for k in range(n))
+    base = dataclasses.replace(
+        base, gain_margin_db=min(gm), phase_margin_deg=min(pm),
+        n_unstable=sum(not e.stable for e in evaluations),
+    )  # fmt: skip
     return MachineOutcome(
         **{f.name: getattr(base, f.name) for f in dataclasses.fields(Outcome)},
+        axis_gain_margin_db=gm,
+        axis_phase_margin_deg=pm,
         axis_following_error=tuple(
             max(e.axis_following_error[k] for e in evaluations) for k in range(n)
         ),
@@ -539,23 +597,15 @@ class MachineProblem(TuneProblem):
     The constraints, per axis: ``max_following_error.<axis>`` (counts over the axis's
     limit: ``constraints.max_following_error``, or 1 % of the axis's largest commanded span
     over the tasks, of the largest axis's for an axis that does not move: the multi-axis
-    check's rule), ``saturation_fraction.<axis>``, and ``diverged``.
-    Margin constraints are refused (the search does not compute the machine's margins).
+    check's rule), ``saturation_fraction.<axis>``, ``gain_margin.<axis>`` and
+    ``phase_margin.<axis>`` (the loop's margins with the others closed, at the scenario's
+    own timing, when the constraints have minima), and ``diverged``.
     """
 
     scenario: MachineScenario
     space: MachineSpace
-    constraints: Constraints = MACHINE_CONSTRAINTS
 
     def __post_init__(self) -> None:
-        if self.constraints.margins:
-            raise ParameterError(
-                "a machine's search constrains following error, saturation and divergence, "
-                "not the loop margins (the multi-axis check decides them); pass "
-                "Constraints(min_gain_margin_db=None, min_phase_margin_deg=None); got "
-                f"min_gain_margin_db={self.constraints.min_gain_margin_db!r}, "
-                f"min_phase_margin_deg={self.constraints.min_phase_margin_deg!r}."
-            )
         if self.space.n_axes != self.scenario.n_axes:
             raise ParameterError(
                 f"the search space has {self.space.n_axes} axes but the {self.scenario.plant} "
@@ -567,6 +617,10 @@ class MachineProblem(TuneProblem):
     def n_axes(self) -> int:
         """The machine's axes."""
         return self.scenario.n_axes
+
+    def margin_scenario(self) -> MachineScenario:
+        """The scenario with every loop's margins computed in each evaluation."""
+        return dataclasses.replace(self.scenario, margins=True)
 
     def make_evaluator(self) -> MachineEvaluator:
         """A new :class:`MachineEvaluator` of the scenario."""
@@ -599,15 +653,24 @@ class MachineProblem(TuneProblem):
             )
         if c.no_divergence:
             out["diverged"] = float(outcome.n_diverged)
+        bound = MARGIN_CONSTRAINT_BOUND
+        for name, low, got in (
+            ("gain_margin", c.min_gain_margin_db, outcome.axis_gain_margin_db),
+            ("phase_margin", c.min_phase_margin_deg, outcome.axis_phase_margin_deg),
+        ):
+            if low is not None:
+                for k, v in enumerate(got):
+                    out[axis_name(name, k + 1)] = min(max(low - v, -bound), bound)
         return out
 
     def constraint_scales(self, fe_limit: Sequence[float]) -> dict[str, float]:
         """What the safe tuner divides each constraint value by: each axis's limits."""
-        sat = max(float(self.constraints.max_saturation), 0.01)
+        one = super().constraint_scales(1.0)
         out = {}
         for k, limit in enumerate(fe_limit):
             out[axis_name("max_following_error", k + 1)] = max(float(limit), 1.0)
-            out[axis_name("saturation_fraction", k + 1)] = sat
+            for name in ("saturation_fraction", "gain_margin", "phase_margin"):
+                out[axis_name(name, k + 1)] = one[name]
         return out
 
     def check(self, params: Any, limits: Any, **kw: Any) -> Any:
@@ -664,7 +727,6 @@ def _plain(value: Any) -> Any:
 
 __all__ = [
     "AXIS_SEP",
-    "MACHINE_CONSTRAINTS",
     "MachineEvaluation",
     "MachineEvaluator",
     "MachineOutcome",

@@ -119,22 +119,30 @@ def check_machine(
     workers: Any = None,
 ) -> Any:
     """The multi-axis check of ``params`` on the problem's machine
-    (``servogym.sim._multicheck.check_machine_params``).
+    (``servogym.sim._multicheck.check_machine_params``: the stress set on the reference
+    integration, every loop-latency and sequencing choice, each loop's margins with the
+    others closed), on the nominal plant with the scenario's tasks, weights, assumptions,
+    sequencing and contour mode, then on each of ``extra_plants`` (a robust run's draws).
 
-    Raises:
-        TuneError: when the multi-axis check is not available in this version.
+    Returns:
+        The nominal plant's report if every plant passes, else the first failing one, its
+        failures prefixed with the plant instance.
     """
-    try:
-        from servogym.sim._multicheck import check_machine_params
-    except ImportError:
-        raise TuneError(
-            "the multi-axis check (servogym.sim._multicheck) is not available in this "
-            "version, so a machine's tuned sets cannot be checked before they are written; "
-            "pass --no-check to write them unchecked."
-        ) from None
+    from servogym.sim._multicheck import check_machine_params
+
     evaluator = problem.make_evaluator()
     evaluator.plant.set_params(problem.nominal_plant())
-    return check_machine_params(params, evaluator.multi, limits=limits)
+    first = check_machine_params(params, evaluator.multi, limits, workers=workers)
+    if not first.passed:
+        return first
+    for i, values in enumerate(extra_plants):
+        report = check_machine_params(params, evaluator.multi, limits, plant_values=values,
+                                      workers=workers)  # fmt: skip
+        if not report.passed:
+            where = f"plant instance {i + 1} of {len(extra_plants)}"
+            failures = tuple(f"{where}: {f}" for f in report.failures)
+            return dataclasses.replace(report, failures=failures)
+    return first
 
 
 def read_warm_start(path: str | Path, problem: MachineProblem) -> dict[str, int]:

@@ -242,12 +242,16 @@ class TuneProblem:
             )
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ParameterError(f"seed must be an integer >= 0; got seed={self.seed!r}.")
+        if self.constraints.margins:
+            object.__setattr__(self, "scenario", self.margin_scenario())
+
+    def margin_scenario(self) -> Any:
+        """The scenario with the margins every evaluation needs for margin constraints."""
         sc = self.scenario
-        if self.constraints.margins and not (sc.margins and sc.margin_latencies == "every"):
-            # margin constraints need every evaluation to compute the margins, at every
-            # loop-latency choice (the check's latency cases)
-            object.__setattr__(self, "scenario", dataclasses.replace(
-                sc, margins=True, margin_latencies="every"))  # fmt: skip
+        if sc.margins and sc.margin_latencies == "every":
+            return sc
+        # at every loop-latency choice (the check's latency cases)
+        return dataclasses.replace(sc, margins=True, margin_latencies="every")
 
     @property
     def multi_objective(self) -> bool:

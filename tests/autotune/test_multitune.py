@@ -122,10 +122,15 @@ def test_tuners_search_every_axis_with_per_axis_constraints(tuner):
     t = result.trials[-1]
     assert set(t.params) == {"u_kp.1", "u_kd.1", "u_kp.2", "u_kd.2"}
     assert set(t.constraints) == {
-        "max_following_error.1", "max_following_error.2",
-        "saturation_fraction.1", "saturation_fraction.2", "diverged",
-    }  # fmt: skip
-    assert len(t.user_attrs["outcome"]["axis_following_error"]) == 2
+        f"{c}.{k}" for k in (1, 2) for c in ("max_following_error", "saturation_fraction",
+                                             "gain_margin", "phase_margin")
+    } | {"diverged"}  # fmt: skip
+    outcome = t.user_attrs["outcome"]
+    assert len(outcome["axis_following_error"]) == 2
+    # each loop's margins with the other closed: finite on these stable loops, and the
+    # constraint is the minimum minus the margin
+    assert all(x is not None for x in outcome["axis_gain_margin_db"])
+    assert t.constraints["gain_margin.2"] == pytest.approx(6.0 - outcome["axis_gain_margin_db"][1])
     assert result.best_params.numbers == (1, 2)
 
 
@@ -232,6 +237,26 @@ def test_bad_input_is_refused_in_one_line_before_the_study(app, tmp_path, args, 
     assert result.exit_code == 2, result.output
     assert message in " ".join(result.output.split()), result.output
     assert not (out / "study.journal").exists()
+
+
+@pytest.mark.slow  # the multi-axis check runs its stress set (about 30 s)
+def test_the_checked_set_is_written_and_a_failing_one_withheld(app, tmp_path):
+    out = tmp_path / "run"
+    result = _tune(app, out, "--chip", "MC2100", "--plant", "xy-stage", "--check-candidates", "2")
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["check"]["passed"] and summary["hardware_files_withheld"] == []
+    assert (out / "best_params.c").exists() and "check passed" in " ".join(result.output.split())
+    # minima no set of this search can meet: exit 1, the loadable files withheld
+    bad = tmp_path / "bad"
+    result = _tune(app, bad, "--chip", "MC2100", "--plant", "xy-stage", "--check-candidates",
+                   "1", "--min-phase-margin", "89")  # fmt: skip
+    assert result.exit_code == 1, result.output
+    summary = json.loads((bad / "summary.json").read_text())
+    assert not summary["check"]["passed"] and summary["check"]["failures"]
+    assert summary["hardware_files_withheld"] == ["cmotion", "host"]
+    assert not (bad / "best_params.c").exists() and (bad / "best_params.json").exists()
+    assert "phase margin" in " ".join(result.output.split())
 
 
 def test_a_warm_start_the_outputs_would_replace_is_refused(app, tmp_path):
