@@ -8,7 +8,7 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -615,6 +615,17 @@ def check(
     if plant is None:
         _fail("--plant is required (or --instance, a benchmark instance id)")
         return
+    from servogym.plants import MULTI_PLANTS
+
+    if plant in MULTI_PLANTS:  # a machine: PARAMS is a multi-axis file
+        limits_kw = dict(
+            min_gain_margin_db=min_gain_margin,
+            min_phase_margin_deg=min_phase_margin,
+            max_following_error=max_following_error,
+            max_saturation=max_saturation,
+        )
+        _check_machine(params_file, plant, chip, limits_kw, plant_param, plant_file, out, as_json)
+        return
     check_choice("--plant", plant, get_plant)
     try:
         loaded = read_params_file(params_file, model=chip, what="PARAMS")
@@ -669,6 +680,136 @@ def check(
         console.print(f"wrote {folder / 'bode.png'} and {folder / 'check.json'}", highlight=False)
     if not report.passed:
         raise typer.Exit(code=1)
+
+
+def _check_machine(
+    params_file: Path,
+    plant: str,
+    chip: str | None,
+    limits_kw: dict[str, Any],
+    plant_param: list[str] | None,
+    plant_file: Path | None,
+    out: Path | None,
+    as_json: bool,
+) -> None:
+    """``servogym check`` of a multi-axis parameter file on a multi-axis plant
+    (:func:`servogym.sim.check_machine_params`): the per-axis table, the cases, the verdict;
+    exit code 1 when the sets fail."""
+    from servogym._cli_common import check_writable_folder
+    from servogym._files import write_atomic
+    from servogym.chips import ParameterError
+    from servogym.chips._axes import load_axes
+    from servogym.plants import PlantParameterError
+    from servogym.sim._check import CheckLimits
+    from servogym.sim._multicheck import check_machine_params
+
+    try:
+        axes = load_axes(params_file, model=chip)
+        if chip is not None and chip.upper() != axes.model.upper():
+            _fail(f"--chip {chip} differs from the params file's chip model {axes.model}")
+        assumptions = _axes_assumptions(params_file, axes.family)
+        limits = CheckLimits(**limits_kw)
+        values = _plant_values(plant_file, plant, plant_param)
+        folder = out or params_file.with_name(params_file.stem + "_check")
+        check_writable_folder("--out", folder)  # before the check, not after it
+        with _working(
+            f"checking {axes.model} on {plant}: {len(axes)} axes, the stress set on the "
+            f"reference integration and every loop's margins with the others closed (a minute "
+            f"or more)",
+            as_json,
+        ):
+            report = check_machine_params(axes, plant, limits, plant_values=values,
+                                          assumptions=assumptions)  # fmt: skip
+    except (ParameterError, PlantParameterError, ValueError, KeyError, OSError) as exc:
+        _fail(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
+        return
+    doc = {"params_file": str(params_file), "axis_numbers": list(axes.numbers),
+           "plant_values": values, **report.to_dict()}  # fmt: skip
+    write_atomic(folder / "check.json", json.dumps(doc, indent=2) + "\n")
+    if as_json:
+        typer.echo(json.dumps(doc, indent=2))
+    else:
+        for table in _machine_check_tables(doc):
+            console.print(table)
+        for line in report.failures:
+            console.print(f"[red]fail:[/red] {line}", highlight=False)
+        console.print(f"wrote {folder / 'check.json'}", highlight=False)
+    if not report.passed:
+        raise typer.Exit(code=1)
+
+
+def _axes_assumptions(path: Path, family: Any) -> Any:
+    """The assumption switches a multi-axis file records (its header, or its JSON
+    ``assumptions``), else the family's defaults."""
+    from servogym._input import read_text
+    from servogym.chips._axisfile import read_axes_json
+    from servogym.chips._load import detect_format
+
+    text = read_text(path, "PARAMS")
+    if detect_format(text) == "json":
+        table = family.export_module.FORMAT_TABLE
+        return read_axes_json(table.schema, text, noun=table.index)[1].assumptions
+    return family.export_module.read_header(text).get("assumptions") or (
+        family.default_assumptions()
+    )
+
+
+def _machine_check_tables(doc: dict[str, Any]) -> list[Any]:
+    """Per axis: its loop's margins with the others closed (worst over the cases and every
+    latency x sequencing choice), its following error and saturation; then the cases."""
+    from rich.table import Table
+
+    from servogym.autotune._cli import _fmt, _margin
+
+    limits = doc["limits"]
+    verdict = "[green]passed[/green]" if doc["passed"] else "[red]FAILED[/red]"
+    stable = "stable" if doc["stable"] else "[red]UNSTABLE[/red]"
+    title = (
+        f"check {verdict}: {doc['chip_model']} on {doc['plant']}, the machine's closed loop "
+        f"{stable} (minima {limits['min_gain_margin_db']:g} dB, "
+        f"{limits['min_phase_margin_deg']:g} deg; saturation at most "
+        f"{100 * limits['max_saturation']:g} % of ticks)"
+    )
+    caption = (
+        "GM, PM: each loop's gain and phase margin with the other loops closed, the worst "
+        "over the cases, operating configurations and latency/sequencing choices, with where; "
+        "error: largest following error over the cases / its limit (counts)"
+    )
+    axes = Table(title=title, title_justify="left", caption=caption, caption_justify="left")
+    for col in ("axis", "latency", "GM (reference)", "PM (reference)", "worst GM", "worst PM",
+                "error", "at limit"):  # fmt: skip
+        axes.add_column(col, justify="left" if col == "axis" else "right")
+    for k, loop in enumerate(doc["loops"]):
+        name = loop["axis"]
+        worst = doc["worst"].get(name, {})
+        rows = [c["axes"][k] for c in doc["cases"]]
+        fe = max(rows, key=lambda r: r["max_following_error"] / r["following_error_limit"])
+
+        def w(key: str, unit: str, worst=worst) -> str:
+            if key not in worst:
+                return "none"
+            return f"{_margin(worst[key]['value'], unit)} ({worst[key]['case']})"
+
+        axes.add_row(
+            name, f"{1e6 * loop['latency_s']:.4g} us",
+            _margin(loop["margins"]["gain_margin_db"], "dB"),
+            _margin(loop["margins"]["phase_margin_deg"], "deg"),
+            w("gain_margin_db", "dB"), w("phase_margin_deg", "deg"),
+            f"{_fmt(fe['max_following_error'])} / {_fmt(fe['following_error_limit'])}",
+            f"{100 * max(r['saturation_fraction'] for r in rows):.1f} %",
+        )  # fmt: skip
+    cases = Table(title="stress cases (RK4 reference)", title_justify="left")
+    for col in ("case", "latency", "sequencing", "cost", "contour max", "diverged", "stable",
+                "verdict"):  # fmt: skip
+        cases.add_column(col, justify="left" if col == "case" else "right")
+    for c in doc["cases"]:
+        cases.add_row(
+            c["name"], c["loop_latency"], c["sequencing"], _fmt(c["cost"]),
+            f"{c['max_contour_error_um']:.3g} um", c["divergence"] or "no",
+            "yes" if c["stable"] else "[red]NO[/red]",
+            "[green]ok[/green]" if c["passed"] else "[red]fail[/red]",
+        )  # fmt: skip
+    return [axes, cases]
 
 
 @contextlib.contextmanager

@@ -905,7 +905,9 @@ def check_machine_params(
     configs = ref_mm.configurations
     chip = ev.chip
     timing: dict[str, tuple[Margins, ...]] = {}
-    named: list[list[_Named]] = [[] for _ in names]
+    named: list[list[_Named]] = [
+        [_Named(r.name, r.axes[k].margins) for r in results] for k in range(len(names))
+    ]  # cases first: ties name a case
     cache: dict = {}
     for latency in type(machine.assumptions).CHOICES["loop_latency"]:
         asm = dataclasses.replace(machine.assumptions, loop_latency=latency)
@@ -921,9 +923,6 @@ def check_machine_params(
                 failures += _loop_failures(f"timing {key}", mm, names, limits)
             for k in range(len(names)):
                 named[k].append(_Named(f"timing {key}", timing[key][k]))
-    for r in results:
-        for k, a in enumerate(r.axes):
-            named[k].append(_Named(r.name, a.margins))
     loops = []
     for k, name in enumerate(names):
         w = ref_mm.worst(k, limits)
