@@ -28,6 +28,9 @@ Version History of ``TuneEnv`` and ``ScheduleEnv`` (docs/envs.md) says what each
 SCENARIO_VERSIONS: tuple[int, ...] = (1,)
 """The versions the gain-scheduling scenario ids exist in (they were added with ``-v1``)."""
 
+MACHINE_VERSIONS: tuple[int, ...] = (1,)
+"""The versions the multi-axis plants' ids exist in (they were added with ``-v1``)."""
+
 ENTRY_POINTS = {
     "Tune": "servogym._registration:make_tune_env",
     "Schedule": "servogym._registration:make_schedule_env",
@@ -113,6 +116,10 @@ BUILTIN_FAMILIES: dict[str, tuple[str, str]] = {
 BUILTIN_PLANTS: tuple[str, ...] = ("rotary", "two-mass", "vertical-axis", "arm")
 """Plant family names, in registry order."""
 
+BUILTIN_MACHINE_PLANTS: tuple[str, ...] = ("two-link-arm", "xy-stage")
+"""Multi-axis plant family names, in registry order (their ids exist in
+:data:`MACHINE_VERSIONS`)."""
+
 
 def plant_id_name(plant: str) -> str:
     """The plant family's part of an env id (``vertical-axis`` -> ``VerticalAxis``)."""
@@ -124,13 +131,21 @@ def make_id(kind: str, family_id: str, plant: str, version: int = VERSION) -> st
     return f"{NAMESPACE}/{kind}-{family_id}-{plant_id_name(plant)}-v{version}"
 
 
-def register(family: str, family_id: str, default_model: str, plant: str) -> list[str]:
+def register(
+    family: str,
+    family_id: str,
+    default_model: str,
+    plant: str,
+    versions: tuple[int, ...] | None = None,
+) -> list[str]:
     """Register both kinds for one chip family and plant family, in every version of
-    :data:`VERSIONS` (idempotent); return the ids."""
+    ``versions`` (default: every one of :data:`VERSIONS`; idempotent); return the ids."""
     import gymnasium as gym
 
     ids = []
     for version, defaults in VERSIONS.items():
+        if versions is not None and version not in versions:
+            continue
         for kind, entry_point in ENTRY_POINTS.items():
             eid = make_id(kind, family_id, plant, version)
             ids.append(eid)
@@ -197,6 +212,12 @@ def register_builtin() -> list[str]:
         for family, (family_id, model) in BUILTIN_FAMILIES.items()
         for plant in BUILTIN_PLANTS
         for eid in register(family, family_id, model, plant)
+    ]
+    ids += [
+        eid
+        for family, (family_id, model) in BUILTIN_FAMILIES.items()
+        for plant in BUILTIN_MACHINE_PLANTS
+        for eid in register(family, family_id, model, plant, MACHINE_VERSIONS)
     ]
     for name, (family, model, plant) in SCENARIOS.items():
         ids += register_scenario(name, family, BUILTIN_FAMILIES[family][0], model, plant)

@@ -51,7 +51,7 @@ from servogym.envs._schedule import (
 from servogym.envs._schedule import observation_table as _schedule_obs_table
 from servogym.envs._tune import IDENT_SCALE, TuneEnv
 from servogym.envs._tune import observation_table as _tune_obs_table
-from servogym.plants import PLANTS
+from servogym.plants import MULTI_PLANTS, PLANTS
 
 NAMESPACE = _registration.NAMESPACE
 VERSION = _registration.VERSION
@@ -85,6 +85,18 @@ def register_envs() -> list[str]:
         for plant in PLANTS
         for eid in _registration.register(
             family.name, family_id_name(family), default_model(family), plant
+        )
+    ]
+    ids += [
+        eid
+        for family in families().values()
+        for plant in MULTI_PLANTS
+        for eid in _registration.register(
+            family.name,
+            family_id_name(family),
+            default_model(family),
+            plant,
+            _registration.MACHINE_VERSIONS,
         )
     ]
     for s in SCENARIOS.values():

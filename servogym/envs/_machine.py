@@ -94,14 +94,32 @@ def per_axis(
     return out
 
 
+MACHINE_REGISTERS: dict[str, dict[str, int]] = {
+    "pmac": {"fatal_following_error_limit": 8388607},
+}
+"""Per chip family, registers the machine envs hold away from the chip's defaults on every
+axis (not in the action). PMAC: Ixx11, the fatal following error limit, at its legal
+maximum (524287 counts): the default 32000 (1/16 count, 2000 counts) is 2 mrad on the
+two-link arm's shoulder encoder (1.04e6 counts/rad through its 50:1 gear) and 0.15 mm on
+the stage's X screw (1.3e7 counts/m), so every move of either machine, whatever the gains,
+killed the motors (a chip motion error) at its first few ticks."""
+
+
+def machine_values(chip_model: str, values: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Per axis, ``values`` over the family's :data:`MACHINE_REGISTERS`."""
+    held = MACHINE_REGISTERS.get(get_chip(chip_model)[0].name, {})
+    return [{**held, **dict(v)} for v in values]
+
+
 def machine_fixed(chip_model: str, n_axes: int) -> dict[str, int]:
-    """The registers a machine of ``n_axes`` holds away from the chip's defaults (a PMD
-    chip's ``sample_time_us``, time-sliced per enabled axis: ``servogym.sim.machine_params``)."""
+    """The registers a machine of ``n_axes`` holds away from the chip's defaults: a PMD
+    chip's ``sample_time_us``, time-sliced per enabled axis (``servogym.sim.machine_params``),
+    and the family's :data:`MACHINE_REGISTERS`."""
     from servogym.sim._machine import machine_params
 
     chip, model = get_chip(chip_model)
     space = chip.parameter_space(model)
-    machine = machine_params(model, n_axes)[0]
+    machine = machine_params(model, n_axes, machine_values(model, [{}] * n_axes))[0]
     default = chip.make_params(model)
     return {n: getattr(machine, n) for n in space if getattr(machine, n) != getattr(default, n)}
 
@@ -176,7 +194,7 @@ class MachineScenario:
 
     def default_params(self) -> list[Any]:
         """The chip's default set on every axis, the period set for the axes
-        (``servogym.sim.machine_params``)."""
+        (``servogym.sim.machine_params``) and the family's :data:`MACHINE_REGISTERS`."""
         return self.params(None)
 
     def params(self, values: Any = None) -> list[Any]:
@@ -188,7 +206,7 @@ class MachineScenario:
         """
         from servogym.sim._machine import machine_params
 
-        split = per_axis(values, self.axes, "params")
+        split = machine_values(self.chip_model, per_axis(values, self.axes, "params"))
         return machine_params(self.chip_model, len(self.axes), split)
 
     def draw_plant(self, rng: np.random.Generator) -> dict[str, float]:
@@ -263,9 +281,128 @@ on one side and placing on the other, the elbow anywhere in +-2 rad, so that the
 inertia changes several-fold with the elbow angle from move to move. X-Y stage: 0.2 kg to
 2-10 kg, X picking on one side and placing on the other, Y anywhere in +-80 mm."""
 
-MACHINE_CENTERS: dict[tuple[str, str], tuple[dict[str, int], ...]] = {}
+MACHINE_CENTERS: dict[tuple[str, str], tuple[dict[str, int], ...]] = {
+    # servogym/Schedule-PMAC-TwoLinkArm-v1: 4.74 per move at the zero action (defaults: 81.7)
+    ("pmac", "two-link-arm"): (
+        {
+            "notch_n1": 0,
+            "notch_n2": 0,
+            "notch_d1": 0,
+            "notch_d2": 0,
+            "proportional_gain": 28152,
+            "derivative_gain": 1664,
+            "velocity_ff": 1673,
+            "integral_gain": 215092,
+            "acceleration_ff": 7211,
+            "friction_ff": 0,
+        },
+        {
+            "notch_n1": 0,
+            "notch_n2": 0,
+            "notch_d1": 0,
+            "notch_d2": 0,
+            "proportional_gain": 28152,
+            "derivative_gain": 1664,
+            "velocity_ff": 1673,
+            "integral_gain": 215092,
+            "acceleration_ff": 7211,
+            "friction_ff": 0,
+        },
+    ),
+    # servogym/Schedule-PMAC-XyStage-v1: 20.5 per move at the zero action (defaults: 100)
+    ("pmac", "xy-stage"): (
+        {
+            "notch_n1": 0,
+            "notch_n2": 0,
+            "notch_d1": 0,
+            "notch_d2": 0,
+            "proportional_gain": 118153,
+            "derivative_gain": 1664,
+            "velocity_ff": 1665,
+            "integral_gain": 215093,
+            "acceleration_ff": 7211,
+            "friction_ff": 0,
+        },
+        {
+            "notch_n1": 0,
+            "notch_n2": 0,
+            "notch_d1": 0,
+            "notch_d2": 0,
+            "proportional_gain": 118153,
+            "derivative_gain": 1664,
+            "velocity_ff": 1665,
+            "integral_gain": 215093,
+            "acceleration_ff": 7211,
+            "friction_ff": 0,
+        },
+    ),
+    # servogym/Schedule-PMD-TwoLinkArm-v1: 16 per move at the zero action (defaults: 100)
+    ("pmd", "two-link-arm"): (
+        {
+            "kp": 721,
+            "ki": 1213,
+            "kd": 1134,
+            "kvff": 2,
+            "kaff": 3883,
+            "kout": 558,
+            "integration_limit": 398918242,
+            "derivative_time": 8,
+            "bias": 18283,
+        },
+        {
+            "kp": 960,
+            "ki": 1840,
+            "kd": 2251,
+            "kvff": 20,
+            "kaff": 14646,
+            "kout": 587,
+            "integration_limit": 2569,
+            "derivative_time": 3,
+            "bias": -1082,
+        },
+    ),
+    # servogym/Schedule-PMD-XyStage-v1: 3.58 per move at the zero action (defaults: 83.3)
+    ("pmd", "xy-stage"): (
+        {
+            "kp": 954,
+            "ki": 4423,
+            "kd": 14490,
+            "kvff": 0,
+            "kaff": 3229,
+            "kout": 1305,
+            "integration_limit": 11042,
+            "derivative_time": 1,
+            "bias": 296,
+        },
+        {
+            "kp": 954,
+            "ki": 4423,
+            "kd": 14490,
+            "kvff": 0,
+            "kaff": 3229,
+            "kout": 1305,
+            "integration_limit": 11042,
+            "derivative_time": 1,
+            "bias": 296,
+        },
+    ),
+    # servogym/Schedule-Parker6K-TwoLinkArm-v1: 0.779 per move at the zero action (defaults: 90.3)
+    ("parker6k", "two-link-arm"): (
+        {"sgp": 852624, "sgi": 8598642, "sgv": 1161, "sgvf": 1188, "sgaf": 155},
+        {"sgp": 852624, "sgi": 8598642, "sgv": 1161, "sgvf": 1188, "sgaf": 155},
+    ),
+    # servogym/Schedule-Parker6K-XyStage-v1: 4.32 per move at the zero action (defaults: 100)
+    ("parker6k", "xy-stage"): (
+        {"sgp": 1147826, "sgi": 9999999, "sgv": 2387, "sgvf": 2387, "sgaf": 166},
+        {"sgp": 1147826, "sgi": 9999999, "sgv": 2387, "sgvf": 2387, "sgaf": 166},
+    ),
+}
 """(chip family, multi-axis plant) -> per axis, the register values of a safe set: the zero
-action of the Schedule ids' residual action (docs/envs.md says how each was found)."""
+action of the Schedule ids' residual action. Each is the best fixed set of a search on the
+id's own episodes (``experiments/machine_schedule_centres.py``: TPE from the chip defaults and
+the family's servobench-v1 best-known sets put on every axis; the mean cost per move of two
+seeded 4-move episodes; results in ``experiments/results/schedule/machine_centres.jsonl``).
+Where both axes hold one set, a servobench set put on both axes was the best found."""
 
 
 def cycle_sweep(
@@ -309,8 +446,9 @@ def machine_need(
             at = ", ".join(f"{k}={v:.6g}" for k, v in corner.items()) or "its nominal values"
             raise MotorFeasibilityError(
                 f"the {need.family} motor cannot move {what} at {at}: it needs "
-                f"{need.total_nm:.3g} of its {need.peak_nm:.3g} peak ({need.fraction:.0%}; at "
-                f"most {PEAK_HEADROOM:.0%} leaves the feedback its share); narrow the ranges."
+                f"{need.total_nm:.3g} of its {need.peak_nm:.3g} peak (N*m; N on a linear "
+                f"motor), {need.fraction:.0%}, where at most {PEAK_HEADROOM:.0%} leaves the "
+                f"feedback its share; narrow the ranges or fix the heavy values."
             )
     return needs
 

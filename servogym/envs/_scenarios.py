@@ -241,7 +241,10 @@ def feasibility_rows() -> list[dict[str, Any]]:
 
     One row per registered Schedule id of the newest version (the plant-family ids with
     their default cycle, and the scenarios; a ``-v0`` plant id's box is its ``-v1`` twin's),
-    computed by building the env (its ``need``: :func:`servogym.envs._schedule.cycle_need`).
+    computed by building the env (its ``need``: :func:`servogym.envs._schedule.cycle_need`;
+    a multi-axis plant's: the axis nearest its motor's peak,
+    :func:`servogym.envs._machine.machine_need`). ``moves``: the moves as text (a machine:
+    each axis's span of targets, velocity and acceleration limits).
     """
     import gymnasium as gym
 
@@ -252,6 +255,15 @@ def feasibility_rows() -> list[dict[str, Any]]:
         if not eid.split("/")[1].startswith("Schedule-") or id_version(eid) != VERSION:
             continue
         env = gym.make(eid).unwrapped
+        if env.axes is None:
+            m = env.scenario.moves[0]
+            moves = f"+-{m.distance:.3g}, {m.max_velocity:.3g}, {m.max_acceleration:.3g}"
+        else:  # a machine: each axis's span of targets, velocity and acceleration limits
+            moves = "; ".join(
+                f"{axis} {lo:.3g} .. {hi:.3g}, {v:.3g}, {a:.3g}"
+                for k, (axis, (v, a)) in enumerate(zip(env.axes, env._limits, strict=True))
+                for lo, hi in [env.cycle.span(k)]
+            )
         rows.append(
             {
                 "env_id": eid,
@@ -259,7 +271,7 @@ def feasibility_rows() -> list[dict[str, Any]]:
                 "empty": env._empty,
                 "part": env._part,
                 "fixed": dict(env.scenario.plant_values),
-                "moves": env.scenario.moves,
+                "moves": moves,
                 "need": env.need,
             }
         )
@@ -280,12 +292,11 @@ def feasibility_table_markdown() -> str:
     for r in feasibility_rows():
         n = r["need"]
         fixed = ", ".join(f"{k}={_fmt(v)}" for k, v in r["fixed"].items()) or "-"
-        m = r["moves"][0]
-        moves = f"+-{m.distance:.3g}, {m.max_velocity:.3g}, {m.max_acceleration:.3g}"
+        axis = f"{n.family.split('/')[1]}: " if "/" in n.family else ""
         lines.append(
             f"| `{r['env_id']}` | `{r['param']}` {_fmt(r['empty'])} .. "
-            f"{_fmt(r['part'][0])}-{_fmt(r['part'][1])} | {fixed} | {moves} | "
-            f"{n.total_nm:.3g} (inertia {n.inertia_nm:.3g}, gravity {n.gravity_nm:.3g}, "
+            f"{_fmt(r['part'][0])}-{_fmt(r['part'][1])} | {fixed} | {r['moves']} | "
+            f"{axis}{n.total_nm:.3g} (inertia {n.inertia_nm:.3g}, gravity {n.gravity_nm:.3g}, "
             f"Coulomb {n.coulomb_nm:.3g}, viscous {n.viscous_nm:.3g}) | {n.fraction:.0%} of "
             f"{n.peak_nm:.3g} |"
         )

@@ -560,15 +560,29 @@ def _trapezoid_time(distance: float, v: float, a: float) -> float:
     return distance / v + v / a
 
 
-def observation_table(condition: bool = False) -> str:
+def observation_table(condition: bool = False, axes: tuple[str, ...] | None = None) -> str:
     """The observation table of the scheduling env, generated from the feature lists
-    (``condition``: with :data:`CONDITION_FEATURES`)."""
-    rows = [(i, f"`last_{n}`", doc, t) for i, (n, t, doc) in enumerate(MOVE_FEATURES)]
+    (``condition``: with :data:`CONDITION_FEATURES`; ``axes``: a machine's, every per-axis
+    feature once per axis, named ``<axis>_<feature>``)."""
+    if axes is None:
+        rows = [(i, f"`last_{n}`", doc, t) for i, (n, t, doc) in enumerate(MOVE_FEATURES)]
+        state = list(STATE_FEATURES)
+        cond = list(CONDITION_FEATURES)
+    else:
+        rows = [(0, f"`last_{a}_{n}`", doc, t) for a in axes for n, t, doc in MOVE_FEATURES]
+        state = [(f"{a}_{n}", t, d) for a in axes for n, t, d in STATE_FEATURES[:2]]
+        state += STATE_FEATURES[2:]
+        cond = [CONDITION_FEATURES[0]] + [
+            (f"{a}_{end}", "float (rad or m)", f"axis {a}'s joint position at the coming "
+             f"move's {end}")
+            for end in ("start", "end") for a in axes
+        ]  # fmt: skip
+    rows = [(i, *r[1:]) for i, r in enumerate(rows)]
     base = len(rows)
-    rows += [(base + i, f"`{n}`", doc, t) for i, (n, t, doc) in enumerate(STATE_FEATURES)]
+    rows += [(base + i, f"`{n}`", doc, t) for i, (n, t, doc) in enumerate(state)]
     base = len(rows)
     if condition:
-        rows += [(base + i, f"`{n}`", d, t) for i, (n, t, d) in enumerate(CONDITION_FEATURES)]
+        rows += [(base + i, f"`{n}`", d, t) for i, (n, t, d) in enumerate(cond)]
         base = len(rows)
     rows.append(
         (

@@ -261,7 +261,11 @@ def identification_move(scenario: Any) -> MoveSpec | CoordinatedSpec:
     )
 
 
-def observation_table() -> str:
-    """The observation table of the tuning env, generated from :data:`MOVE_FEATURES`."""
-    rows = [(i, f"`{n}`", doc, t) for i, (n, t, doc) in enumerate(MOVE_FEATURES)]
+def observation_table(axes: tuple[str, ...] | None = None) -> str:
+    """The observation table of the tuning env, generated from :data:`MOVE_FEATURES`
+    (``axes``: a machine's, every feature once per axis, named ``<axis>_<feature>``)."""
+    named = [(f"`{n}`", t, doc) for n, t, doc in MOVE_FEATURES]
+    if axes is not None:
+        named = [(f"`{a}_{n}`", t, doc) for a in axes for n, t, doc in MOVE_FEATURES]
+    rows = [(i, n, doc, t) for i, (n, t, doc) in enumerate(named)]
     return markdown_table(("Num", "Observation", "Meaning", "Type (Unit)"), rows)

@@ -48,7 +48,8 @@ def _rollout(eid: str, seed: int, n_episodes: int = 2) -> tuple[list, list]:
 
 
 def test_registry_has_every_kind_family_plant_and_version():
-    from servogym._registration import SCENARIO_VERSIONS
+    from servogym._registration import MACHINE_VERSIONS, SCENARIO_VERSIONS
+    from servogym.plants import MULTI_PLANTS
 
     expected = {
         envs.env_id(kind, fam, plant, version)
@@ -61,6 +62,13 @@ def test_registry_has_every_kind_family_plant_and_version():
         f"servogym/Schedule-{envs.family_id_name(families()[s.family])}-{name}-v{version}"
         for name, s in envs.SCENARIOS.items()
         for version in SCENARIO_VERSIONS
+    }
+    expected |= {  # the multi-axis plants' ids, from -v1 (tests/envs/test_multi_envs.py)
+        envs.env_id(kind, fam, plant, version)
+        for kind in ("Tune", "Schedule")
+        for fam in families().values()
+        for plant in MULTI_PLANTS
+        for version in MACHINE_VERSIONS
     }
     assert set(IDS) == expected
     assert {"servogym/Tune-PMD-VerticalAxis-v0", "servogym/Tune-PMD-VerticalAxis-v1"} <= set(IDS)
@@ -160,7 +168,7 @@ def test_non_finite_or_out_of_range_action_names_index_and_register(eid, bad):
 
 
 @pytest.mark.parametrize("eid", BOX_IDS)
-@pytest.mark.parametrize("shape", [(1,), (20,), (2, 9), ()])
+@pytest.mark.parametrize("shape", [(1,), (21,), (2, 9), ()])  # 20: a PMAC machine's
 def test_wrong_action_shape_is_an_error(eid, shape):
     env = gym.make(eid).unwrapped
     env.reset(seed=0)

@@ -16,7 +16,7 @@ import servogym.envs as envs
 from servogym import _registration
 from servogym.chips._family import families
 from servogym.envs._common import default_model
-from servogym.plants import PLANTS
+from servogym.plants import MULTI_PLANTS, PLANTS
 
 DOCS = pathlib.Path(__file__).resolve().parents[2] / "docs" / "envs.md"
 
@@ -53,7 +53,10 @@ def test_import_servogym_registers_every_id_without_loading_the_simulator():
     assert got["ids"] == envs.registered_ids()
     n_versions = len(_registration.VERSIONS)
     n_scenario_ids = len(envs.SCENARIOS) * len(_registration.SCENARIO_VERSIONS)
-    assert len(got["ids"]) == 2 * len(families()) * len(PLANTS) * n_versions + n_scenario_ids
+    n_machine_ids = 2 * len(families()) * len(MULTI_PLANTS) * len(_registration.MACHINE_VERSIONS)
+    assert len(got["ids"]) == (
+        2 * len(families()) * len(PLANTS) * n_versions + n_scenario_ids + n_machine_ids
+    )
     assert got["heavy"] == []  # no numba, MuJoCo, torch, Optuna until an env is made
     assert got["shape"] == [12]  # the Tune observation (docs/envs.md)
     assert got["s"] < 5.0

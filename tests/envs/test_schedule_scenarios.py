@@ -15,6 +15,7 @@ import pytest
 import servogym.envs as envs
 from servogym import _registration
 from servogym.envs import SCENARIOS, PickAndPlace
+from servogym.envs._machine import plant_family
 from servogym.plants import PEAK_HEADROOM, MotorFeasibilityError, get_plant
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,7 +41,7 @@ def test_every_schedule_box_is_movable_by_its_motor(eid):
     env = gym.make(eid).unwrapped
     assert env.need.feasible and env.need.fraction <= PEAK_HEADROOM
     # the heaviest part the cycle can draw is inside the box the need was computed over
-    assert env._part[1] <= get_plant(env.scenario.plant).param(env.cycle.param).high
+    assert env._part[1] <= plant_family(env.scenario.plant).param(env.cycle.param).high
 
 
 def test_a_cycle_the_motor_cannot_move_is_refused_in_one_line():
