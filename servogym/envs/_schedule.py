@@ -201,6 +201,8 @@ class ScheduleEnv(gym.Env):
       added; by default they observe the condition (``condition=True``) and act around a
       safe set (``action_type="residual"``) or, on the 6250, choose a stored gain set
       (``"stored"``). The plant ids' action and observation are those of v0.
+      The multi-axis plants' ids (``two-link-arm``, ``xy-stage``) are added, from v1 on
+      (docs/envs.md, "Multi-axis machines").
     * v0: Initial version: raw rewards (``reward_scale=1.0``). Added since, as keywords
       whose defaults keep v0's behaviour: ``reward_scale``, the ``"residual"`` and
       ``"stored"`` actions, ``condition``, ``moves``, ``plant_range``, ``plant_file``.

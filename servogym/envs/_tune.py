@@ -114,6 +114,8 @@ class TuneEnv(gym.Env):
     * v1: Rewards are scaled by 0.01 by default (``reward_scale=0.01``, the factor
       ``servogym train`` applied itself before; ``info["raw_reward"]`` is the unscaled
       reward). Action and observation are those of v0.
+      The multi-axis plants' ids (``two-link-arm``, ``xy-stage``) are added, from v1 on
+      (docs/envs.md, "Multi-axis machines").
     * v0: Initial version: raw rewards (``reward_scale=1.0``). Added since, as keywords
       whose defaults keep v0's behaviour: ``reward_scale``, ``plant_range``,
       ``plant_file``. Changed in place, in every version, because the old defaults asked

@@ -333,3 +333,17 @@ def test_render_draws_every_axis():
         env.step(np.zeros(env.action_space.shape, np.float32))
         img = env.render()
         assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[0] > 100
+
+
+def test_docs_envs_md_has_the_machine_tables():
+    from pathlib import Path
+
+    from servogym.envs._schedule import observation_table as schedule_table
+    from servogym.envs._tune import observation_table as tune_table
+
+    text = (Path(__file__).parents[2] / "docs" / "envs.md").read_text()
+    axes = MULTI_PLANTS["two-link-arm"].axes
+    assert "\n".join(tune_table(axes).splitlines()[1:]) in text
+    assert schedule_table(True, axes) in text
+    for eid in SCHEDULE_IDS:
+        assert f"| `{eid}` |" in text  # the centres' and the feasibility tables
