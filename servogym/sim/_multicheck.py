@@ -268,9 +268,9 @@ def machine_stability(
     :data:`~servogym.sim._margins.EIGEN_MAX_ORDER` (for one axis, the single-axis
     :func:`~servogym.sim._margins.closed_loop_stability` exactly); above it (long PMD
     DerivativeTime filters, whose shift registers make eigenvalues inaccurate) the zeros of
-    ``det(I - x M)`` inside ``|x| = 1 / (1 - STABILITY_EPS)``, one per closed-loop pole
-    outside ``|z| = 1 - STABILITY_EPS``, counted by the argument principle
-    (:func:`count_det_zeros`)."""
+    the characteristic polynomial (:func:`characteristic_values`) inside ``|x| = 1 / (1 -
+    STABILITY_EPS)``, one per closed-loop pole outside ``|z| = 1 - STABILITY_EPS``, counted
+    by the argument principle (:func:`count_zeros_inside`)."""
     matrix = machine_closed_loop_matrix(lin, filters)
     order = matrix.shape[0]
     limit = 1.0 - STABILITY_EPS
@@ -279,34 +279,51 @@ def machine_stability(
         radius = float(np.max(np.abs(poles)))
         n_unstable = int(np.sum(np.abs(poles) >= limit))
         return Stability(n_unstable == 0, n_unstable, radius, order, "eigenvalues")
-    inside = count_det_zeros(matrix, 1.0 / limit)
+    inside = count_zeros_inside(lambda x: characteristic_values(lin, filters, x), order,
+                                1.0 / limit)  # fmt: skip
     if inside is None:  # a zero on the circle: a marginal pole, not stable
         return Stability(False, 1, math.nan, order, "encirclement")
     return Stability(inside == 0, inside, math.nan, order, "encirclement")
 
 
-def count_det_zeros(matrix: np.ndarray, radius: float) -> int | None:
-    """Zeros of the polynomial ``det(I - x M)`` with ``|x| < radius``: its winding number
-    round the circle, the determinant taken pointwise (LU, ``numpy.linalg.slogdet``), every
-    step whose phase change exceeds 45 degrees split (16 points each) until none does.
-    ``None`` when the determinant vanishes on the circle or the steps do not settle."""
-    size = matrix.shape[0]
-    eye = np.eye(size)
+def characteristic_values(
+    lin: MachineLinear, filters: Sequence[tuple[np.ndarray, np.ndarray]], x: np.ndarray
+) -> np.ndarray:
+    """``det(I - x M)`` of the closed-loop matrix ``M`` (:func:`machine_closed_loop_matrix`)
+    at each ``x = z^-1``, without ``M``: the determinant of the polynomial system matrix
 
-    def det_phase(theta: np.ndarray) -> np.ndarray:
-        out = []
-        for chunk in np.array_split(theta, max(1, theta.size * size * size // 20_000_000 + 1)):
-            x = radius * np.exp(1j * chunk)
-            sign, logabs = np.linalg.slogdet(eye[None] - x[:, None, None] * matrix[None])
-            out.append(np.where(np.isfinite(logabs), sign, 0.0))
-        return np.concatenate(out)
+        [[I - x Phi, x (g_new + x g_old) N(x)], [-C, D(x)]]
 
-    n = max(4096, 1 << math.ceil(math.log2(8 * (size + 1))))
+    (``N``, ``D``: the filters' numerators and denominators, diagonal; its Schur complement
+    is ``det(I - x Phi) det(D + G N)``, the return difference), of size ``n + N`` whatever
+    the filters' orders, and with no inverse, so accurate next to the plant's poles on the
+    unit circle."""
+    x = np.asarray(x, dtype=complex)
+    n, n_axes = lin.phi.shape[0], lin.n_axes
+    s = np.zeros((x.size, n + n_axes, n + n_axes), dtype=complex)
+    s[:, :n, :n] = np.eye(n)[None] - x[:, None, None] * lin.phi[None]
+    s[:, n:, :n] = -lin.c[None]
+    poly = np.polynomial.polynomial.polyval
+    for j, polys in enumerate(filters):
+        nn, dd, _ = _normalised(polys)
+        b = x[:, None] * (lin.g_new[None, :, j] + x[:, None] * lin.g_old[None, :, j])
+        s[:, :n, n + j] = b * poly(x, nn)[:, None]
+        s[:, n + j, n + j] = poly(x, dd)
+    return np.linalg.det(s)
+
+
+def count_zeros_inside(fn: Any, degree: int, radius: float) -> int | None:
+    """Zeros with ``|x| < radius`` of a polynomial of degree at most ``degree`` given
+    pointwise (``fn``: ``x`` array -> values): its winding number round the circle, on at
+    least 8 points per degree, every step whose phase change exceeds 45 degrees split (16
+    points each) until none does (as :func:`~servogym.sim._margins.count_roots_inside` does
+    from coefficients). ``None`` when it vanishes on the circle or the steps do not settle."""
+    n = max(4096, 1 << math.ceil(math.log2(8 * (degree + 1))))
     theta = 2 * np.pi * np.arange(n + 1) / n
-    vals = det_phase(theta[:-1])
+    vals = fn(radius * np.exp(1j * theta[:-1]))
     vals = np.append(vals, vals[0])
     for _ in range(40):
-        if np.min(np.abs(vals)) == 0:
+        if not np.all(np.isfinite(vals)) or np.min(np.abs(vals)) == 0:
             return None
         steps = np.angle(vals[1:] / vals[:-1])
         bad = np.flatnonzero(np.abs(steps) > np.pi / 4)
@@ -315,7 +332,7 @@ def count_det_zeros(matrix: np.ndarray, radius: float) -> int | None:
         frac = np.arange(1, 16) / 16
         new_t = (theta[bad, None] + (theta[bad + 1] - theta[bad])[:, None] * frac).ravel()
         theta = np.concatenate([theta, new_t])
-        vals = np.concatenate([vals, det_phase(new_t)])
+        vals = np.concatenate([vals, fn(radius * np.exp(1j * new_t))])
         order = np.argsort(theta, kind="stable")
         theta, vals = theta[order], vals[order]
     return None
@@ -950,14 +967,16 @@ __all__ = [
     "MachineCheckReport",
     "MachineLinear",
     "MachineMargins",
+    "characteristic_values",
     "check_machine_params",
-    "count_det_zeros",
+    "count_zeros_inside",
     "loop_response",
     "machine_closed_loop_matrix",
     "machine_continuous_model",
     "machine_linearize",
     "machine_loops",
     "machine_margins",
+    "machine_qpos",
     "machine_response",
     "machine_stability",
     "machine_stress_cases",
