@@ -348,8 +348,8 @@ class AxesActions:
 
     Each axis has its own action map (:class:`UnitActions`, :class:`RawActions` or
     :class:`ResidualActions` of the one chip model); the action is theirs concatenated in
-    axis order, and its entries are named ``<axis>.<register>`` (``shoulder.kp``, then
-    ``elbow.kp``). Checks name the entry's index in the whole action.
+    axis order, and its entries are named ``<register>.<axis number>`` (``kp.1`` ... for axis
+    1, then ``kp.2`` ...). Checks name the entry's index in the whole action.
 
     Args:
         axes: The axis names, in axis order.
@@ -364,14 +364,14 @@ class AxesActions:
         self.axes, self.maps = tuple(axes), tuple(maps)
         self.family, self.chip_model = maps[0].family, maps[0].chip_model
         self.specs = tuple(
-            dataclasses.replace(s, name=axis_register(a, s.name))
-            for a, m in zip(self.axes, self.maps, strict=True)
+            dataclasses.replace(s, name=axis_register(k, s.name))
+            for k, m in enumerate(self.maps, start=1)
             for s in m.specs
         )
         self.names = tuple(s.name for s in self.specs)
         self.fixed = {
-            axis_register(a, k): v
-            for a, m in zip(self.axes, self.maps, strict=True)
+            axis_register(i, k): v
+            for i, m in enumerate(self.maps, start=1)
             for k, v in m.fixed.items()
         }
         self._cuts = np.cumsum([len(m.names) for m in self.maps])[:-1]
@@ -394,17 +394,17 @@ class AxesActions:
 
         Raises:
             ValueError: for a wrong shape or type, or an entry outside its range, naming the
-                index in the whole action and the entry's ``<axis>.<register>`` name.
+                index in the whole action and the entry's ``<register>.<axis number>`` name.
         """
         return [m.to_values(p) for m, p in zip(self.maps, self._parts(action), strict=True)]
 
     def to_values(self, action: Any) -> dict[str, int]:
-        """Every axis's register values, named ``<axis>.<register>``."""
+        """Every axis's register values, named ``<register>.<axis number>``."""
         from servogym.envs._machine import axis_register
 
         return {
-            axis_register(a, k): v
-            for a, values in zip(self.axes, self.axis_values(action), strict=True)
+            axis_register(i, k): v
+            for i, values in enumerate(self.axis_values(action), start=1)
             for k, v in values.items()
         }
 
@@ -413,7 +413,7 @@ class AxesActions:
         return [m.to_params(p) for m, p in zip(self.maps, self._parts(action), strict=True)]
 
     def from_values(self, values: Any) -> np.ndarray:
-        """The action closest to ``values``: a mapping (``<axis>.<register>`` for one axis, a
+        """The action closest to ``values``: a mapping (``<register>.<axis number>`` for one axis, a
         plain register name for every axis) or one mapping per axis; raises as the axes'
         maps do."""
         from servogym.envs._machine import per_axis
@@ -423,12 +423,12 @@ class AxesActions:
 
     @property
     def center_values(self) -> dict[str, int]:
-        """The residual maps' centre sets, named ``<axis>.<register>``."""
+        """The residual maps' centre sets, named ``<register>.<axis number>``."""
         from servogym.envs._machine import axis_register
 
         return {
-            axis_register(a, k): v
-            for a, m in zip(self.axes, self.maps, strict=True)
+            axis_register(i, k): v
+            for i, m in enumerate(self.maps, start=1)
             for k, v in m.center_values.items()
         }
 
@@ -454,7 +454,7 @@ def make_action_map(
     ``center`` and ``residual_scale`` are those of ``"residual"`` (:class:`ResidualActions`).
     With ``axes`` (a machine's axis names), one map per axis side by side
     (:class:`AxesActions`): ``params``, ``fixed`` and ``center`` are then split by axis
-    (``servogym.envs._machine.per_axis``: ``<axis>.<register>`` for one axis, a plain name
+    (``servogym.envs._machine.per_axis``: ``<register>.<axis number>`` for one axis, a plain name
     for every axis), and registers the machine holds for its axes (a PMD chip's time-sliced
     ``sample_time_us``) are fixed on every axis.
     """
@@ -492,33 +492,27 @@ def _axis_params(
     params: tuple[str, ...] | None, axes: tuple[str, ...]
 ) -> list[tuple[str, ...] | None]:
     """Per axis, the registers its action sets: a plain name on every axis, an
-    ``<axis>.<register>`` name on its own; ``None``: every tunable one."""
-    from servogym.envs._machine import AXIS_SEPARATOR
+    ``<register>.<axis number>`` name on its own; ``None``: every tunable one."""
+    from servogym.envs._machine import split_register
 
     if params is None:
         return [None] * len(axes)
     if isinstance(params, str) or not all(isinstance(n, str) for n in params):
         raise ValueError(
-            f"params must be a sequence of register names, e.g. ('kp', 'elbow.kd'); got "
+            f"params must be a sequence of register names, e.g. ('kp', 'kd.2'); got "
             f"params={params!r}."
         )
     out: list[list[str]] = [[] for _ in axes]
     for name in params:
-        axis, sep, register = name.partition(AXIS_SEPARATOR)
-        if not sep:
-            for names in out:
-                names.append(name)
-        elif axis in axes:
-            out[axes.index(axis)].append(register)
-        else:
-            raise ValueError(
-                f"params names axis {axis!r} in {name!r}; the axes are {', '.join(axes)}."
-            )
+        k, register = split_register(name, axes, "params")
+        for names in out if k is None else [out[k]]:
+            names.append(register)
     for axis, names in zip(axes, out, strict=True):
         if not names:
             raise ValueError(
-                f"params sets no register of axis {axis!r}; name one on every axis (a plain "
-                f"name such as 'kp' sets it on all); got params={tuple(params)!r}."
+                f"params sets no register of axis {axes.index(axis) + 1} ({axis}); name one on "
+                f"every axis (a plain name such as 'kp' sets it on all); got "
+                f"params={tuple(params)!r}."
             )
     return [tuple(n) for n in out]
 

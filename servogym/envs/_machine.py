@@ -7,7 +7,7 @@ the plant's instance distribution and the tasks of :class:`servogym.sim.MultiEva
 a :class:`MachineCycle` (the gain-scheduling env's pick and place configurations), the
 per-axis safe sets the residual action acts around (:data:`MACHINE_CENTERS`), and the
 action of every axis side by side (:class:`servogym.envs.AxesActions`, register names
-``<axis>.<register>``). With one axis, the envs run exactly as before.
+``<register>.<axis number>``, ``kp.2``). With one axis, the envs run exactly as before.
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ from servogym.sim._multieval import DEFAULT_TASKS, MultiCostWeights
 from servogym.sim._scenario import MoveSpec
 
 AXIS_SEPARATOR = "."
-"""Between an axis's name and a register's in the names of a multi-axis action
-(``shoulder.kp``, ``x.proportional_gain``)."""
+"""Between a register's name and its axis number in the names of a multi-axis action
+(``kp.1``, ``kp.2``; PMAC ``proportional_gain.2``): the hardware's axis (motor) numbers, 1
+first, as ``servogym tune`` names a machine's registers (``servogym.autotune._machine``)."""
 
 
 def is_machine(plant: str) -> bool:
@@ -41,10 +42,29 @@ def plant_family(plant: str) -> Any:
     return MULTI_PLANTS[plant] if is_machine(plant) else get_plant(plant)
 
 
-def axis_register(axis: str, name: str) -> str:
-    """A register's name on one axis of a machine: ``axis_register("elbow", "kp")`` is
-    ``"elbow.kp"``."""
-    return f"{axis}{AXIS_SEPARATOR}{name}"
+def axis_register(number: int, name: str) -> str:
+    """A register's name on axis ``number`` (1 first) of a machine: ``axis_register(2, "kp")``
+    is ``"kp.2"``."""
+    return f"{name}{AXIS_SEPARATOR}{number}"
+
+
+def split_register(key: str, axes: Sequence[str], what: str) -> tuple[int | None, str]:
+    """``"kp.2"`` -> ``(1, "kp")`` (the axis's index, 0 first); a plain name -> ``(None, name)``.
+
+    Raises:
+        ValueError: naming ``what``, for an axis number the machine does not have.
+    """
+    name, sep, number = str(key).rpartition(AXIS_SEPARATOR)
+    if not sep or not number.isdigit():
+        return None, str(key)
+    k = int(number)
+    if not 1 <= k <= len(axes):
+        listed = ", ".join(f"{i} ({a})" for i, a in enumerate(axes, start=1))
+        raise ValueError(
+            f"{what} names axis {k} in {key!r}; the axes are {listed} (names are "
+            f"'<register>{AXIS_SEPARATOR}<axis number>')."
+        )
+    return k - 1, name
 
 
 def per_axis(
@@ -54,8 +74,9 @@ def per_axis(
 ) -> list[dict[str, Any]]:
     """``values`` split by axis.
 
-    A sequence gives one mapping per axis; in a mapping, a name ``<axis>.<register>`` goes to
-    that axis and a plain register name to every axis (an axis's own entry wins).
+    A sequence gives one mapping per axis; in a mapping, a name ``<register>.<axis number>``
+    (``kp.2``) goes to that axis and a plain register name to every axis (an axis's own entry
+    wins).
 
     Raises:
         ValueError: naming ``what``, for a sequence of another length or an unknown axis.
@@ -72,23 +93,19 @@ def per_axis(
         return [dict(v or {}) for v in values]
     if not isinstance(values, Mapping):
         raise ValueError(
-            f"{what} must be a mapping of register values (a name '<axis>.<register>' sets one "
-            f"axis, a plain name every axis) or one mapping per axis; got {what}={values!r}."
+            f"{what} must be a mapping of register values (a name '<register>.<axis number>' "
+            f"sets one axis, a plain name every axis) or one mapping per axis; got "
+            f"{what}={values!r}."
         )
     out: list[dict[str, Any]] = [{} for _ in axes]
     qualified = []
     for key, value in values.items():
-        axis, sep, name = str(key).partition(AXIS_SEPARATOR)
-        if not sep:
+        k, name = split_register(key, axes, what)
+        if k is None:
             for d in out:
                 d[key] = value
-            continue
-        if axis not in axes:
-            raise ValueError(
-                f"{what} names axis {axis!r} in {key!r}; the axes are {', '.join(axes)} "
-                f"(names are '<axis>{AXIS_SEPARATOR}<register>')."
-            )
-        qualified.append((axes.index(axis), name, value))
+        else:
+            qualified.append((k, name, value))
     for k, name, value in qualified:
         out[k][name] = value
     return out

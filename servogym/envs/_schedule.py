@@ -352,7 +352,7 @@ class ScheduleEnv(gym.Env):
         n_axes = 1
         if self.axes is not None:
             n_axes = len(self.axes)
-            self._space = {axis_register(a, n): s for a in self.axes
+            self._space = {axis_register(k, n): s for k in range(1, n_axes + 1)
                            for n, s in self._space.items()}  # fmt: skip
         self._n_move = len(MOVE_FEATURES) * n_axes
         n_state = 2 * n_axes + len(STATE_FEATURES) - 2
