@@ -52,11 +52,11 @@ CROSSOVER_HZ = {"pmd": 60.0, "pmac": 40.0, "parker6k": 40.0}
 
 SHORT = {
     "xy-stage": (
-        CoordinatedSpec((0.3, 0.3), (5.0, 5.0), targets=(0.01, 0.01), settle_s=0.03),
+        CoordinatedSpec((0.3, 0.3), (5.0, 5.0), targets=(0.01, 0.02), settle_s=0.03),
         ContourSpec(LinePath((0.0, 0.0), (0.008, 0.008)), 0.1, 2.0, settle_s=0.03),
     ),
     "two-link-arm": (
-        CoordinatedSpec((2.0, 3.0), (20.0, 30.0), targets=(0.1, -0.1), settle_s=0.03),
+        CoordinatedSpec((2.0, 3.0), (10.0, 15.0), targets=(0.4, -0.4), settle_s=0.03),
     ),
 }
 """Small tasks that keep the tests quick (the defaults are checked by the CLI test)."""
