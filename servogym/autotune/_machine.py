@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from servogym.autotune._problem import MARGIN_CONSTRAINT_BOUND, Outcome, TuneProblem, aggregate
-from servogym.autotune._space import UNIT_PREFIX
+from servogym.autotune._space import SearchSpace
 from servogym.chips._axes import PERIOD_PER_AXIS, MultiAxisParams, max_axes
 from servogym.chips._family import ChipFamily, get_chip
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
@@ -94,7 +94,7 @@ def machine_space(chip_model: str, n_axes: int) -> ParameterSpace:
 
 
 @dataclasses.dataclass(frozen=True)
-class MachineSpace:
+class MachineSpace(SearchSpace):
     """The registers a tuner searches on a machine, and the values it holds fixed.
 
     The same interface as :class:`~servogym.autotune.SearchSpace` (unit names, Optuna
@@ -109,10 +109,7 @@ class MachineSpace:
             the machine's default.
     """
 
-    chip_model: str
-    n_axes: int
-    names: tuple[str, ...]
-    fixed: Mapping[str, int] = dataclasses.field(default_factory=dict)
+    n_axes: int = 1
 
     @classmethod
     def for_machine(
@@ -164,12 +161,7 @@ class MachineSpace:
                 f"register is fixed (fixed {', '.join(fixed_values) or 'none'}). Search at "
                 "least one register."
             )
-        return cls(model, n_axes, searched, fixed_values)
-
-    @property
-    def family(self) -> ChipFamily:
-        """The chip family."""
-        return get_chip(self.chip_model)[0]
+        return cls(model, searched, fixed_values, n_axes=n_axes)
 
     @property
     def space(self) -> ParameterSpace:
@@ -181,27 +173,6 @@ class MachineSpace:
         """The searched names' specs, in order."""
         space = self.space
         return [space[n] for n in self.names]
-
-    @property
-    def unit_names(self) -> tuple[str, ...]:
-        """The Optuna parameter names, ``u_<register>.<axis>``."""
-        return tuple(UNIT_PREFIX + n for n in self.names)
-
-    def distributions(self) -> dict[str, Any]:
-        """Optuna distributions: one ``FloatDistribution(-1, 1)`` per searched name."""
-        from optuna.distributions import FloatDistribution
-
-        return {u: FloatDistribution(-1.0, 1.0) for u in self.unit_names}
-
-    def values_from_unit(self, unit: Mapping[str, float]) -> dict[str, int]:
-        """Values of the searched names plus the fixed ones, from ``u_<name>``."""
-        out = {s.name: s.from_unit(float(unit[UNIT_PREFIX + s.name])) for s in self.specs}
-        out.update(self.fixed)
-        return out
-
-    def to_unit(self, values: Mapping[str, Any]) -> dict[str, float]:
-        """The ``u_<name>`` coordinates of a set's searched names (a warm start)."""
-        return {UNIT_PREFIX + s.name: s.to_unit(values[s.name]) for s in self.specs}
 
     def base_values(self) -> dict[str, int]:
         """Every name's value when nothing is searched: the defaults and the fixed ones."""
@@ -225,10 +196,6 @@ class MachineSpace:
                 d[register] = v
         family = self.family
         return MultiAxisParams([family.make_params(self.chip_model, d) for d in per_axis])
-
-    def params_from_unit(self, unit: Mapping[str, float]) -> MultiAxisParams:
-        """The sets a point of the unit cube stands for."""
-        return self.make_params(self.values_from_unit(unit))
 
     def register_values(self, params: MultiAxisParams | Sequence[Any]) -> dict[str, int]:
         """Every name's value of the axes' sets (axes in order, numbered 1 .. n)."""

@@ -11,9 +11,10 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from servogym.autotune import TuneConfig, _job, tune
+from servogym.autotune import TuneConfig, tune
 from servogym.autotune._cli import fallback_line, summary_heading, tune_command
 from servogym.autotune._report import plant_description
+from servogym.sim import _check
 from servogym.sim._check import CheckReport
 
 from .helpers import SHORT_MOVES
@@ -35,7 +36,7 @@ def app() -> typer.Typer:
 @pytest.fixture
 def best_fails(monkeypatch):
     """The check fails the first set it is given (the best trial) and passes the rest."""
-    real = _job.check_params
+    real = _check.check_params  # TuneProblem.check calls it
     seen = []
 
     def fake(params, scenario, limits, **kw):
@@ -47,7 +48,7 @@ def best_fails(monkeypatch):
                                                  "(10.00 deg short)",))  # fmt: skip
         return dataclasses.replace(report, passed=True, failures=())
 
-    monkeypatch.setattr(_job, "check_params", fake)
+    monkeypatch.setattr(_check, "check_params", fake)
     return seen
 
 
