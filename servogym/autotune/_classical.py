@@ -547,6 +547,9 @@ class ModelBasedTuner(Tuner):
             )
         keys = ("accel_gain", "coulomb_cmd", "viscous_cmd", "gravity_cmd", "fit_rms")
         model = {k: float(np.mean([f[k] for f in fits])) for k in keys}
+        identified = getattr(session, "on_identified", None)
+        if identified is not None:  # the safe tuner predicts margins on this model
+            identified(model)
         ctx.candidates(pole_placement_designs(model["accel_gain"], ctx.dt,
                                               gravity_cmd=model["gravity_cmd"],
                                               viscous_cmd=model["viscous_cmd"]))  # fmt: skip

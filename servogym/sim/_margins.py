@@ -220,7 +220,13 @@ def linearize(plant: Any, dt: float, latency: float, continuous: Any = None) -> 
     depend on ``dt`` or ``latency``); computed here otherwise.
     """
     a, b, c, d = continuous if continuous is not None else continuous_model(plant)
-    b = b * plant.io.amp_amps_per_count
+    return discretize((a, b * plant.io.amp_amps_per_count, c, d), dt, latency)
+
+
+def discretize(continuous: Any, dt: float, latency: float) -> LinearPlant:
+    """The continuous model ``(A, B, C, d)`` (input in command counts, output in encoder
+    counts) held for a period ``dt`` after a loop latency ``latency`` (s)."""
+    a, b, c, d = continuous
     phi_rest, g_new = _hold_integral(a, b, dt - latency)
     phi_lat, g_lat = _hold_integral(a, b, latency)
     _, drift = _hold_integral(a, d, dt)
@@ -940,24 +946,13 @@ def _latency_free(chip: Any, assumptions: Any) -> Any:
     return asm
 
 
-def analyse_loop(chip: Any, params: Any, assumptions: Any, lin: LinearPlant) -> LoopAnalysis:
-    """Stability, every crossover and the margins of ``params`` closing the loop on ``lin``.
-
-    What does not depend on the gains is computed once per linear plant and kept on it
-    (its polynomials, its response on the search's base grid and on the display grid), and
-    the filter's response on the base grid once per set (:func:`_filter_on_base`).
-
-    Args:
-        chip: The chip family (``ChipFamily``).
-        params: The parameter set.
-        assumptions: The chip's assumption switches (``None``: defaults).
-        lin: The plant at the set's sample period (``chip.sample_time_s(params)``) and loop
-            latency (:func:`linearize`).
-    """
+def _search_margins(
+    chip: Any, params: Any, assumptions: Any, lin: LinearPlant
+) -> tuple[Margins, Stability, Any]:
+    """The margins of :func:`analyse_loop` (stability and the crossover search, without the
+    display grid's response), the stability and the filter's response ``z -> C(z)``."""
     polys = chip.filter_polynomials(params, assumptions)
     stability = closed_loop_stability(polys, lin)
-    dt = lin.dt
-
     response = getattr(chip, "response_function", None)
     if response is not None:  # the family's own function: ChipFamily.filter_response's values
         asm = chip._assumptions(assumptions)
@@ -984,8 +979,32 @@ def analyse_loop(chip: Any, params: Any, assumptions: Any, lin: LinearPlant) -> 
         c_base = _filter_on_base(chip, params, _latency_free(chip, assumptions), lo)
     except TypeError:  # an unhashable parameter set: not cached
         c_base = chip.filter_response(params, assumptions, 1 / np.exp(-1j * base))
-    m = _grid_margins(search_fn, dt, stability, base, c_base * lin._search_response(lo))
+    m = _grid_margins(search_fn, lin.dt, stability, base, c_base * lin._search_response(lo))
+    return m, stability, filter_at
 
+
+def margins_only(chip: Any, params: Any, assumptions: Any, lin: LinearPlant) -> Margins:
+    """The :class:`Margins` of :func:`analyse_loop`, identical, without the loop's response on
+    the display grid (cheaper: a tuner's prediction of a set's margins)."""
+    return _search_margins(chip, params, assumptions, lin)[0]
+
+
+def analyse_loop(chip: Any, params: Any, assumptions: Any, lin: LinearPlant) -> LoopAnalysis:
+    """Stability, every crossover and the margins of ``params`` closing the loop on ``lin``.
+
+    What does not depend on the gains is computed once per linear plant and kept on it
+    (its polynomials, its response on the search's base grid and on the display grid), and
+    the filter's response on the base grid once per set (:func:`_filter_on_base`).
+
+    Args:
+        chip: The chip family (``ChipFamily``).
+        params: The parameter set.
+        assumptions: The chip's assumption switches (``None``: defaults).
+        lin: The plant at the set's sample period (``chip.sample_time_s(params)``) and loop
+            latency (:func:`linearize`).
+    """
+    m, stability, filter_at = _search_margins(chip, params, assumptions, lin)
+    dt = lin.dt
     extra = [hz for hz, _, _ in m.crossovers] + [hz for hz, _ in m.phase_crossovers]
     if math.isfinite(m.bandwidth_hz):
         extra.append(m.bandwidth_hz)
