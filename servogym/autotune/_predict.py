@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from servogym.sim._margins import discretize, margins_only
+from servogym.sim._margins import Margins, discretize, margins_only
+from servogym.sim._operating import severity
 
 
 class MarginPredictor:
@@ -54,20 +55,45 @@ class MarginPredictor:
         self._linear: dict[tuple[float, float], Any] = {}
         self.bias = np.zeros(2)
         """How much the model overstates the margins (dB, degrees), from :meth:`calibrate`."""
+        c = problem.constraints
+        self.limits = (c.min_gain_margin_db, c.min_phase_margin_deg)
+        """The problem's minimum gain margin (dB) and phase margin (degrees); ``None``: none."""
 
-    def raw(self, values: Mapping[str, Any]) -> tuple[float, float]:
-        """The model's gain margin (dB) and phase margin (degrees) of a register set; an
-        unstable loop's are ``-inf``."""
+    def margins(self, values: Mapping[str, Any]) -> Margins:
+        """The model's :class:`~servogym.sim._margins.Margins` of a register set."""
         params = self.problem.space.make_params(values)
         dt = self.chip.sample_time_s(params)
         latency = self.chip.loop_latency_s(params, self.assumptions)
         key = (dt, latency)
         if key not in self._linear:
             self._linear[key] = discretize(self._continuous, dt, latency)
-        m = margins_only(self.chip, params, self.assumptions, self._linear[key])
+        return margins_only(self.chip, params, self.assumptions, self._linear[key])
+
+    def raw(self, values: Mapping[str, Any]) -> tuple[float, float]:
+        """The model's gain margin (dB) and phase margin (degrees) of a register set; an
+        unstable loop's are ``-inf``."""
+        return self.pair(self.margins(values))
+
+    @staticmethod
+    def pair(m: Margins) -> tuple[float, float]:
+        """``(gain margin dB, phase margin degrees)`` of ``m``; ``-inf`` when unstable."""
         if not m.stable:
             return -math.inf, -math.inf
         return float(m.gain_margin_db), float(m.phase_margin_deg)
+
+    def severity(self, m: Margins) -> tuple[bool, float]:
+        """:func:`~servogym.sim._operating.severity` of margins against the limits (smaller
+        is worse); every unstable loop ranks the same, ``(False, -inf)``."""
+        if not m.stable:
+            return False, -math.inf
+        return severity(m, *(x or 0.0 for x in self.limits))
+
+    def clears(self, gm: float, pm: float, buffer: tuple[float, float]) -> bool:
+        """Whether margins (dB, degrees) clear the limits by ``buffer``."""
+        lo_gm, lo_pm = self.limits
+        return (lo_gm is None or gm >= lo_gm + buffer[0]) and (
+            lo_pm is None or pm >= lo_pm + buffer[1]
+        )
 
     def calibrate(self, predicted: np.ndarray, measured: np.ndarray) -> None:
         """Learn the bias from sets evaluated: rows of (gain margin, phase margin), the

@@ -69,15 +69,6 @@ BINARY_CONSTRAINTS = ("diverged",)
 """Constraints that are counts (0 when met): modelled as -1 (met) or +1 (violated)."""
 
 
-def _margins_clear(
-    gm: float, pm: float, limits: tuple[float | None, float | None], buffer: tuple[float, float]
-) -> bool:
-    """Whether margins (dB, degrees) clear their limits (``None``: none) by the buffer."""
-    return (limits[0] is None or gm >= limits[0] + buffer[0]) and (
-        limits[1] is None or pm >= limits[1] + buffer[1]
-    )
-
-
 def _matern52(a: np.ndarray, b: np.ndarray, ell: float) -> np.ndarray:
     """Matern-5/2 correlation between the rows of ``a`` (n x d) and ``b`` (m x d)."""
     d2 = np.maximum((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * a @ b.T, 0.0)
@@ -469,7 +460,7 @@ class _Model:
             gm, pm = self.predictor.predicted(self.space.values_from_unit(unit))
         except ValueError:  # a set the chip refuses: the session records the refusal
             return True
-        return _margins_clear(gm, pm, self.limits, self.tuner.model_buffer)
+        return self.predictor.clears(gm, pm, self.tuner.model_buffer)
 
 
 def _sampler_class() -> type:
@@ -626,23 +617,16 @@ class _LineSearchSession:
         pred = self._predictor
         if pred is None:
             return sets, first
-        limits = (self.problem.constraints.min_gain_margin_db,
-                  self.problem.constraints.min_phase_margin_deg)  # fmt: skip
         margins = []
         for values, _ in sets:
             try:
-                margins.append(pred.raw(values))
-            except ValueError:
-                margins.append((math.inf, math.inf))
-        keep = [i for i, m in enumerate(margins)
-                if _margins_clear(*m, limits, self._tuner.design_buffer)]  # fmt: skip
+                margins.append(pred.margins(values))
+            except ValueError:  # a set the chip refuses: kept, the session records the refusal
+                margins.append(None)
+        buffer = self._tuner.design_buffer
+        keep = [i for i, m in enumerate(margins) if m is None or pred.clears(*pred.pair(m), buffer)]
         if not keep:
-
-            def rank(i: int) -> float:
-                gm, pm = margins[i]
-                return min(gm / max(limits[0] or 1.0, 1.0), pm / max(limits[1] or 1.0, 1.0))
-
-            return [sets[max(range(len(sets)), key=rank)]], 0
+            return [sets[max(range(len(sets)), key=lambda i: pred.severity(margins[i]))]], 0
         return [sets[i] for i in keep], keep.index(first) if first in keep else 0
 
     def candidates(self, sets: list[tuple[Mapping[str, int], str]]) -> list[Any]:
