@@ -492,11 +492,31 @@ def count_roots_inside(coef: np.ndarray, radius: float) -> int | None:
     scaled = coef * radius ** np.arange(n + 1)
     noise = 1e-12 * float(np.sum(np.abs(scaled)))
     size = max(4096, 1 << math.ceil(math.log2(8 * (n + 1))))
-    theta = 2 * np.pi * np.arange(size + 1) / size
     vals = np.fft.ifft(scaled, size) * size
+    return winding_number(
+        size, vals,
+        lambda t: np.polynomial.polynomial.polyval(np.exp(1j * t), scaled),
+        lambda v: bool(np.min(np.abs(v)) <= noise),
+    )  # fmt: skip
+
+
+def winding_number(size: int, vals: np.ndarray, at: Any, vanishes: Any) -> int | None:
+    """Turns of a function round zero on the unit circle's angles ``2 pi k / size``.
+
+    Args:
+        size: Points of the first grid.
+        vals: The function on them (``size`` values).
+        at: ``theta`` array -> the function's values there (for the refinement).
+        vanishes: values -> whether the function is (within rounding) zero there.
+
+    Every step whose phase change exceeds 45 degrees is split (16 points each) until none
+    does, so no turn is missed. ``None``: it vanishes on the circle, or 40 refinements do not
+    settle.
+    """
+    theta = 2 * np.pi * np.arange(size + 1) / size
     vals = np.append(vals, vals[0])
     for _ in range(40):
-        if np.min(np.abs(vals)) <= noise:
+        if vanishes(vals):
             return None
         steps = np.angle(vals[1:] / vals[:-1])
         bad = np.flatnonzero(np.abs(steps) > np.pi / 4)
@@ -504,9 +524,8 @@ def count_roots_inside(coef: np.ndarray, radius: float) -> int | None:
             return round(float(np.sum(steps)) / (2 * np.pi))
         frac = np.arange(1, 16) / 16
         new_t = (theta[bad, None] + (theta[bad + 1] - theta[bad])[:, None] * frac).ravel()
-        new_v = np.polynomial.polynomial.polyval(np.exp(1j * new_t), scaled)
         theta = np.concatenate([theta, new_t])
-        vals = np.concatenate([vals, new_v])
+        vals = np.concatenate([vals, at(new_t)])
         order = np.argsort(theta, kind="stable")
         theta, vals = theta[order], vals[order]
     return None

@@ -76,6 +76,7 @@ from servogym.sim._margins import (
     frequency_grid,
     frequency_margins,
     linearize,
+    winding_number,
 )
 from servogym.sim._multieval import MultiCostWeights, MultiEvaluator
 from servogym.sim._operating import POSITION_DECIMALS, _same_loop, severity
@@ -319,23 +320,11 @@ def count_zeros_inside(fn: Any, degree: int, radius: float) -> int | None:
     points each) until none does (as :func:`~servogym.sim._margins.count_roots_inside` does
     from coefficients). ``None`` when it vanishes on the circle or the steps do not settle."""
     n = max(4096, 1 << math.ceil(math.log2(8 * (degree + 1))))
-    theta = 2 * np.pi * np.arange(n + 1) / n
-    vals = fn(radius * np.exp(1j * theta[:-1]))
-    vals = np.append(vals, vals[0])
-    for _ in range(40):
-        if not np.all(np.isfinite(vals)) or np.min(np.abs(vals)) == 0:
-            return None
-        steps = np.angle(vals[1:] / vals[:-1])
-        bad = np.flatnonzero(np.abs(steps) > np.pi / 4)
-        if not bad.size:
-            return round(float(np.sum(steps)) / (2 * np.pi))
-        frac = np.arange(1, 16) / 16
-        new_t = (theta[bad, None] + (theta[bad + 1] - theta[bad])[:, None] * frac).ravel()
-        theta = np.concatenate([theta, new_t])
-        vals = np.concatenate([vals, fn(radius * np.exp(1j * new_t))])
-        order = np.argsort(theta, kind="stable")
-        theta, vals = theta[order], vals[order]
-    return None
+    return winding_number(
+        n, fn(radius * np.exp(1j * (2 * np.pi * np.arange(n) / n))),
+        lambda t: fn(radius * np.exp(1j * t)),
+        lambda v: not np.all(np.isfinite(v)) or np.min(np.abs(v)) == 0,
+    )  # fmt: skip
 
 
 def machine_loops(
