@@ -40,6 +40,7 @@ from servogym.autotune._space import SearchSpace
 from servogym.chips._axes import PERIOD_PER_AXIS, MultiAxisParams, max_axes
 from servogym.chips._family import ChipFamily, get_chip
 from servogym.chips._space import ParameterError, ParameterSpace, ParamSpec
+from servogym.sim._scenario import plant_draw
 
 AXIS_SEP = "."
 """Separator of a register and its axis number in a per-axis name (``kp.2``)."""
@@ -345,13 +346,8 @@ class MachineScenario:
 
     def draw_plant(self, rng: np.random.Generator) -> dict[str, float]:
         """A plant instance: nominal (or drawn when ``randomise``), with the fixed values."""
-        family = self.family
-        if self.randomise:
-            values = family.sample(rng, self.sample_scale, ranges=self.plant_ranges)
-        else:
-            values = family.nominal()
-        values.update(self.plant_values)
-        return values
+        return plant_draw(self.family, rng, self.randomise, self.sample_scale, self.plant_ranges,
+                          self.plant_values)  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,7 +23,7 @@ import numpy as np
 from servogym.chips._family import get_chip
 from servogym.plants import MULTI_PLANTS, PEAK_HEADROOM, MotorFeasibilityError, get_plant
 from servogym.sim._multieval import DEFAULT_TASKS, MultiCostWeights
-from servogym.sim._scenario import MoveSpec
+from servogym.sim._scenario import MoveSpec, plant_draw
 
 AXIS_SEPARATOR = "."
 """Between a register's name and its axis number in the names of a multi-axis action
@@ -228,13 +228,8 @@ class MachineScenario:
 
     def draw_plant(self, rng: np.random.Generator) -> dict[str, float]:
         """A plant instance, as :meth:`servogym.sim.Scenario.draw_plant` draws one."""
-        family = self.family
-        if self.randomise:
-            values = family.sample(rng, self.sample_scale, ranges=self.plant_ranges)
-        else:
-            values = family.nominal()
-        values.update(self.plant_values)
-        return values
+        return plant_draw(self.family, rng, self.randomise, self.sample_scale, self.plant_ranges,
+                          self.plant_values)  # fmt: skip
 
     def box(self) -> dict[str, tuple[float, float]]:
         """The ranges a draw takes the parameters from (the fixed ones left out)."""

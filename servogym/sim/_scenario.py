@@ -217,13 +217,27 @@ class Scenario:
         A draw takes every randomised parameter, and every one in ``plant_ranges``, from its
         range (``PlantFamily.sample``); the fixed ``plant_values`` override it.
         """
-        family = get_plant(self.plant)
-        if self.randomise:
-            values = family.sample(rng, self.sample_scale, ranges=self.plant_ranges)
-        else:
-            values = family.nominal()
-        values.update(self.plant_values)
-        return values
+        return plant_draw(get_plant(self.plant), rng, self.randomise, self.sample_scale,
+                          self.plant_ranges, self.plant_values)  # fmt: skip
+
+
+def plant_draw(
+    family: Any,
+    rng: np.random.Generator,
+    randomise: bool,
+    sample_scale: float,
+    plant_ranges: Mapping[str, tuple[float, float]],
+    plant_values: Mapping[str, float],
+) -> dict[str, float]:
+    """A plant instance of ``family``: drawn (``PlantFamily.sample`` at ``sample_scale``,
+    ``plant_ranges`` overriding the family's ranges) when ``randomise``, else nominal; the
+    fixed ``plant_values`` override it (every scenario's ``draw_plant``)."""
+    if randomise:
+        values = family.sample(rng, sample_scale, ranges=plant_ranges)
+    else:
+        values = family.nominal()
+    values.update(plant_values)
+    return values
 
 
 @dataclasses.dataclass(frozen=True)
