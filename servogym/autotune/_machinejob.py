@@ -278,11 +278,11 @@ def write_outputs(
     from servogym import __version__
     from servogym._files import write_file_set
     from servogym.autotune._report import (
-        _count_kinds,
         _jsonable,
-        _n_counted,
         _png,
         convergence_figure,
+        study_fields,
+        study_notes,
         trials_csv_text,
     )
 
@@ -303,19 +303,7 @@ def write_outputs(
     default_metrics = machine_metrics(d_evals, mode)
     tuned_metrics = machine_metrics(t_evals, mode)
     check_dict = None if check is None else _jsonable(_report_dict(check))
-    notes = {
-        "tuner": result.tuner,
-        "seed": problem.seed,
-        "n_trials": _n_counted(result.trials),
-        "best_trial": result.best.number,
-        "feasible": result.feasible,
-        "cost": tuned_metrics["cost"],
-        "default_cost": default_metrics["cost"],
-        "scenario": problem.describe(),
-        "study": {"storage": result.storage, "name": result.study_name},
-    }
-    if check_dict is not None:
-        notes["check"] = check_dict
+    notes = study_notes(result, problem, default_metrics, tuned_metrics, check_dict)
     withheld = check is not None and not check.passed and not getattr(config, "force", False)
     names = output_names(problem)
     files: dict[str, str] = {f: n for f, n in names.items() if f == "json" or not withheld}
@@ -344,24 +332,7 @@ def write_outputs(
         "axes": list(problem.scenario.family.axes),
         "axis_numbers": list(result.best_params.numbers),
         "axis_noun": result.best_params.noun,
-        "tuner": result.tuner,
-        "seed": problem.seed,
-        "budget": getattr(config, "budget", len(result.trials)),
-        "n_trials": _n_counted(result.trials),
-        "kinds": _count_kinds(result.trials),
-        "best_trial": result.best.number,
-        "feasible": result.feasible,
-        "objectives": list(problem.objectives),
-        "best_values": list(result.best.values),
-        "default": default_metrics,
-        "tuned": tuned_metrics,
-        "best_params": result.best_values,
-        "problem": problem.describe(),
-        "config": _jsonable(dataclasses.asdict(config)) if config is not None else None,
-        "storage": result.storage,
-        "study_name": result.study_name,
-        "elapsed_s": result.elapsed_s,
-        "files": files,
+        **study_fields(result, problem, config, default_metrics, tuned_metrics, files),
         "check": check_dict,
         "hardware_files_withheld": [f for f in names if f != "json"] if withheld else [],
         **(extra or {}),

@@ -274,6 +274,56 @@ def _png(fig: Any) -> bytes:
     return buf.getvalue()
 
 
+def study_fields(
+    result: Any, problem: Any, config: Any, default_metrics: dict, tuned_metrics: dict,
+    files: dict[str, str],
+) -> dict[str, Any]:  # fmt: skip
+    """The fields of summary.json a study gives, from ``tuner`` to ``files`` (in order),
+    for one axis and for a machine (``_machinejob.write_outputs``)."""
+    return {
+        "tuner": result.tuner,
+        "seed": problem.seed,
+        "budget": getattr(config, "budget", len(result.trials)),
+        "n_trials": _n_counted(result.trials),
+        "kinds": _count_kinds(result.trials),
+        "best_trial": result.best.number,
+        "feasible": result.feasible,
+        "objectives": list(problem.objectives),
+        "best_values": list(result.best.values),
+        "default": default_metrics,
+        "tuned": tuned_metrics,
+        "best_params": result.best_values,
+        "problem": problem.describe(),
+        "config": _jsonable(dataclasses.asdict(config)) if config is not None else None,
+        "storage": result.storage,
+        "study_name": result.study_name,
+        "elapsed_s": result.elapsed_s,
+        "files": files,
+    }
+
+
+def study_notes(
+    result: Any, problem: Any, default_metrics: dict, tuned_metrics: dict,
+    check: dict[str, Any] | None,
+) -> dict[str, Any]:  # fmt: skip
+    """The notes the written file set carries (its manifest), for one axis and for a
+    machine; ``check``: the check's JSON-ready report, if any."""
+    notes = {
+        "tuner": result.tuner,
+        "seed": problem.seed,
+        "n_trials": _n_counted(result.trials),
+        "best_trial": result.best.number,
+        "feasible": result.feasible,
+        "cost": tuned_metrics["cost"],
+        "default_cost": default_metrics["cost"],
+        "scenario": problem.describe(),
+        "study": {"storage": result.storage, "name": result.study_name},
+    }
+    if check is not None:
+        notes["check"] = check
+    return notes
+
+
 def write_outputs(
     result: Any,
     out: Path,
@@ -304,19 +354,8 @@ def write_outputs(
     default_metrics = evaluation_metrics(d_evals, mode)
     tuned_metrics = evaluation_metrics(t_evals, mode)
 
-    notes = {
-        "tuner": result.tuner,
-        "seed": problem.seed,
-        "n_trials": _n_counted(result.trials),
-        "best_trial": result.best.number,
-        "feasible": result.feasible,
-        "cost": tuned_metrics["cost"],
-        "default_cost": default_metrics["cost"],
-        "scenario": problem.describe(),
-        "study": {"storage": result.storage, "name": result.study_name},
-    }
-    if check is not None:
-        notes["check"] = _jsonable(check.to_dict())
+    notes = study_notes(result, problem, default_metrics, tuned_metrics,
+                        None if check is None else _jsonable(check.to_dict()))  # fmt: skip
     withheld = check is not None and not check.passed and not getattr(config, "force", False)
     names = export_names(family, model)
     files: dict[str, str] = {f: n for f, n in names.items() if f == "json" or not withheld}
@@ -352,24 +391,7 @@ def write_outputs(
         "chip_model": model,
         "chip_family": family.name,
         "plant": problem.scenario.plant,
-        "tuner": result.tuner,
-        "seed": problem.seed,
-        "budget": getattr(config, "budget", len(result.trials)),
-        "n_trials": _n_counted(result.trials),
-        "kinds": _count_kinds(result.trials),
-        "best_trial": result.best.number,
-        "feasible": result.feasible,
-        "objectives": list(problem.objectives),
-        "best_values": list(result.best.values),
-        "default": default_metrics,
-        "tuned": tuned_metrics,
-        "best_params": result.best_values,
-        "problem": problem.describe(),
-        "config": _jsonable(dataclasses.asdict(config)) if config is not None else None,
-        "storage": result.storage,
-        "study_name": result.study_name,
-        "elapsed_s": result.elapsed_s,
-        "files": files,
+        **study_fields(result, problem, config, default_metrics, tuned_metrics, files),
         "check": None if check is None else check.to_dict(),
         "hardware_files_withheld": [f for f in names if f != "json"] if withheld else [],
         **(extra or {}),
