@@ -213,15 +213,8 @@ class MachineSpace(SearchSpace):
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready: chip model, axes, searched names with their ranges, fixed values."""
-        return {
-            "chip_model": self.chip_model,
-            "n_axes": self.n_axes,
-            "searched": {
-                s.name: {"low": s.low, "high": s.high, "log": s.log, "default": s.default}
-                for s in self.specs
-            },
-            "fixed": dict(self.fixed),
-        }
+        single = super().describe()
+        return {"chip_model": single.pop("chip_model"), "n_axes": self.n_axes, **single}
 
 
 def _expand(family: ChipFamily, model: str, n_axes: int, key: str) -> list[str]:
