@@ -17,9 +17,9 @@ Two families (:data:`MULTI_PLANTS`, docs/plants.md "Multi-axis plants"):
   ball-screw or a linear-motor axis (``x_drive``, ``y_drive``).
 
 Parameters of an axis carry its name as a prefix (``shoulder_gear_ratio``, ``x_screw_lead_m``).
-The single-axis commands (``tune``, ``check``, ``simulate``, the envs) do not take these
-plants yet: :func:`~servogym.plants.get_plant` refuses them in one line, and
-``servogym.sim.MultiServoLoop`` runs them.
+:func:`~servogym.plants.get_plant` (single-axis families) refuses them in one line;
+``servogym.sim.MultiServoLoop`` runs them, and ``servogym tune``, ``check`` and ``export`` and
+the machine env ids (``servogym.envs``) take them through their multi-axis paths.
 """
 
 from __future__ import annotations
@@ -885,6 +885,91 @@ def required_peak_efforts(
                 gravity_nm=float(bias[k]) / gear,
                 coulomb_nm=float(model.dof_frictionloss[io.qvel_adr]) / gear,
                 viscous_nm=float(model.dof_damping[io.qvel_adr]) * vel[k] / gear,
+                peak_nm=io.peak_torque_nm,
+                headroom=PEAK_HEADROOM,
+            )
+        )
+    return tuple(out)
+
+
+COMMAND_WINDOW_S = 0.005
+"""Half-width of the central differences :func:`commanded_efforts` takes of a commanded
+trajectory (s): wide enough that one count of quantisation moves the acceleration by a few
+per cent on the default machines (4 counts / (5 ms)^2 over about 1e6 counts per unit), narrow
+enough to keep a trapezoid's acceleration plateau."""
+
+
+def commanded_efforts(
+    plant: MultiAxisPlant,
+    trajectories: Any,
+    dt: float,
+    *,
+    window_s: float = COMMAND_WINDOW_S,
+) -> tuple[Any, ...]:
+    """The peak motor effort each axis needs to follow commanded joint trajectories.
+
+    Where :func:`required_peak_efforts` bounds a need from move specifications, this reads
+    it off the commanded positions themselves (the coordinated moves and contours of a
+    multi-axis task): velocity and acceleration by central differences over ``window_s``
+    either side, then per axis ``k``, each term the worst over the samples and at the
+    motor (divided by the actuator gear):
+
+    * inertia: ``|(M a)_k|`` (``mj_fullM``, armature included, times every axis's
+      acceleration: the coupling of the others' included, with its sign);
+    * gravity: ``|qfrc_bias_k|`` at the commanded position and velocity (gravity plus the
+      Coriolis and centrifugal forces);
+    * Coulomb (``dof_frictionloss``) and viscous (``dof_damping`` at the peak velocity).
+
+    Args:
+        plant: A compiled multi-axis plant (its current parameters; reset on return).
+        trajectories: One array per task, ``(n_ticks, n_axes)`` joint positions (rad or m)
+            at the servo ticks.
+        dt: The servo period (s).
+        window_s: Half-width of the differences (s); at least one tick.
+
+    Returns:
+        One :class:`~servogym.plants.Need` per axis, in axis order.
+    """
+    from servogym.plants._feasibility import PEAK_HEADROOM, Need
+
+    model, data = plant.model, plant.data
+    ios = plant.ios
+    n = len(ios)
+    h = max(1, round(window_s / dt))
+    stride = max(1, h // 2)
+    full = np.zeros((model.nv, model.nv))
+    dofs = [io.qvel_adr for io in ios]
+    inertia, bias, speed = np.zeros(n), np.zeros(n), np.zeros(n)
+    for q in trajectories:
+        q = np.asarray(q, dtype=float)
+        if q.ndim != 2 or q.shape[1] != n:
+            raise ValueError(f"each trajectory must be (n_ticks, {n}); got {q.shape}")
+        # hold the ends: the machine rests before and after the commanded motion
+        padded = np.concatenate([np.repeat(q[:1], h, 0), q, np.repeat(q[-1:], h, 0)])
+        vel = (padded[2 * h :] - padded[: -2 * h]) / (2 * h * dt)
+        acc = (padded[2 * h :] - 2 * q + padded[: -2 * h]) / (h * dt) ** 2
+        speed = np.maximum(speed, np.max(np.abs(vel), axis=0))
+        for i in range(0, len(q), stride):
+            mujoco.mj_resetData(model, data)
+            for k, io in enumerate(ios):
+                data.qpos[io.qpos_adr] = q[i, k]
+                data.qvel[io.qvel_adr] = vel[i, k]
+            mujoco.mj_forward(model, data)
+            mujoco.mj_fullM(model, data, full)
+            m_a = full[np.ix_(dofs, dofs)] @ acc[i]
+            inertia = np.maximum(inertia, np.abs(m_a))
+            bias = np.maximum(bias, np.abs(data.qfrc_bias[dofs]))
+    plant.reset()
+    out = []
+    for k, io in enumerate(ios):
+        gear = float(model.actuator_gear[io.ctrl_index, 0])
+        out.append(
+            Need(
+                family=f"{plant.family.name}/{plant.family.axes[k]}",
+                inertia_nm=float(inertia[k]) / gear,
+                gravity_nm=float(bias[k]) / gear,
+                coulomb_nm=float(model.dof_frictionloss[io.qvel_adr]) / gear,
+                viscous_nm=float(model.dof_damping[io.qvel_adr]) * float(speed[k]) / gear,
                 peak_nm=io.peak_torque_nm,
                 headroom=PEAK_HEADROOM,
             )

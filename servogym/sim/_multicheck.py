@@ -37,8 +37,10 @@ The margins also cover every latency x sequencing combination on the given plant
 analysis; the simulation runs each alternative alone). A set passes when every case runs
 without divergence, every axis keeps its following error and saturation within the limits
 (:class:`~servogym.sim.CheckLimits`: by default 1 % of the axis's longest commanded span, 5 %
-of ticks), the closed loop of the whole machine is stable in every case and configuration,
-and every loop's gain and phase margins with the others closed meet the minima. Each failure
+of ticks), no axis's set limits its motor command below what the tasks need of its motor
+(:func:`~servogym.plants._multi.commanded_efforts`), the closed loop of the whole machine is
+stable in every case and configuration, and every loop's gain and phase margins with the
+others closed meet the minima. Each failure
 names the case, the axis and by how much. docs/simulation.md, "The check of a multi-axis
 machine", states the rules and the assumptions.
 """
@@ -59,8 +61,10 @@ import scipy.linalg
 
 from servogym.chips._space import ParameterError
 from servogym.sim._check import (
+    FULL_SCALE,
     CheckLimits,
     _scaled,
+    command_limit_failure,
     margin_failures,
     run_failures,
     worst_margins,
@@ -731,6 +735,7 @@ def _run_case(
                                mm.analyses[w][k].margins, mm.configurations[w]))  # fmt: skip
         failures += run_failures(f"{case.name}: {name}", fe, fe_limits[k], sat, limits)
     failures += _loop_failures(case.name, mm, names, limits)
+    failures[:0] = _command_limit_failures(case.name, ev, sets, commands, names)
     contour = max(t.contour.max_um for t in e.tasks)
     if max_contour_error_um is not None and contour > max_contour_error_um:
         failures.append(
@@ -745,6 +750,29 @@ def _run_case(
         stable=mm.stable, spectral_radius=float(max(radii)), failures=tuple(failures),
     )  # fmt: skip
     return result, mm
+
+
+def _command_limit_failures(
+    where: str,
+    ev: MultiEvaluator,
+    sets: Sequence[Any],
+    commands: Sequence[Any],
+    names: Sequence[str],
+) -> list[str]:
+    """Each axis whose set limits the motor command below what the tasks need of its motor
+    (the single-axis rule, :func:`~servogym.sim._check.command_limit_failure`, with the need
+    read off the commanded trajectories: :func:`~servogym.plants._multi.commanded_efforts`);
+    named first, as the cause of what else fails."""
+    from servogym.plants._multi import commanded_efforts
+
+    trajectories = [c.joint_positions(c.commanded_counts()) for c in commands]
+    needs = commanded_efforts(ev.plant, trajectories, ev.loop.dt)
+    out = []
+    for name, params, need in zip(names, sets, needs, strict=True):
+        share = ev.chip.motor_limit(params) / FULL_SCALE
+        if share < need.fraction:
+            out.append(command_limit_failure(f"{where}: {name}", share, need))
+    return out
 
 
 def _loop_failures(

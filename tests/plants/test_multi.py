@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import pathlib
+from types import SimpleNamespace
 
 import mujoco
 import numpy as np
@@ -19,7 +20,7 @@ from servogym.plants import (
     plant_table_markdown,
     required_peak_efforts,
 )
-from servogym.plants._multi import worst_sampled_efforts
+from servogym.plants._multi import commanded_efforts, worst_sampled_efforts
 
 DOC = (pathlib.Path(__file__).parents[2] / "docs" / "plants.md").read_text()
 
@@ -169,6 +170,34 @@ def test_coupling_terms_are_in_the_need():
     acc = [20.0, 30.0]  # the default moves' accelerations
     assert shoulder.inertia_nm == pytest.approx((m[0, 0] * acc[0] + m[0, 1] * acc[1]) / 50)
     assert elbow.inertia_nm == pytest.approx((m[1, 0] * acc[0] + m[1, 1] * acc[1]) / 30)
+
+
+def test_the_need_of_a_commanded_trajectory_is_its_inverse_dynamics():
+    """A bang-bang shoulder move from rest to rest, the elbow stretched: the shoulder needs
+    M_00 * a, the elbow the coupling |M_10| * a (no gravity, no Coriolis at the elbow's 0)."""
+    family = MULTI_PLANTS["two-link-arm"]
+    plant = family.build()
+    dt, a, half = 0.0002, 20.0, 0.1
+    t = np.arange(0.0, 2 * half + dt / 2, dt)
+    q0 = np.where(t <= half, 0.5 * a * t**2, a * half**2 - 0.5 * a * (2 * half - t) ** 2)
+    q = np.stack([q0, np.zeros_like(q0)], axis=1)
+    shoulder, elbow = commanded_efforts(plant, [q], dt)
+    m = TwoLinkArmFamily.mass_matrix(family.nominal(), 0.0)
+    assert shoulder.inertia_nm == pytest.approx(m[0, 0] * a / 50, rel=1e-6)
+    assert elbow.inertia_nm == pytest.approx(abs(m[1, 0]) * a / 30, rel=1e-6)
+    assert shoulder.gravity_nm == pytest.approx(0.0, abs=1e-9)
+    assert shoulder.viscous_nm > 0 and elbow.viscous_nm == 0
+    # the bound from the same move's specification is never below it
+    need = required_peak_efforts(
+        family,
+        moves=(
+            (SimpleNamespace(distance=a * half**2, max_velocity=a * half, max_acceleration=a),),
+            (SimpleNamespace(distance=0.0, max_velocity=0.0, max_acceleration=0.0),),
+        ),
+    )
+    assert need[0].total_nm >= shoulder.total_nm * (1 - 1e-9)
+    with pytest.raises(ValueError, match=r"\(n_ticks, 2\)"):
+        commanded_efforts(plant, [q[:, :1]], dt)
 
 
 @pytest.mark.parametrize("name", list(MULTI_PLANTS))

@@ -348,6 +348,17 @@ def test_destabilising_gains_fail_with_a_named_reason_and_finite_output():
     json.dumps(r.to_dict(), allow_nan=False)  # finite or None, every figure
 
 
+def test_a_command_limit_below_the_tasks_need_fails_first_naming_the_axis():
+    """The single-axis rule per axis: Ixx69 below what the move needs of y's motor."""
+    sets = designed_sets("xy-stage", "TurboPMAC2", 40.0)
+    low = dataclasses.replace(sets[1], output_limit=200)  # 0.6 % of full scale
+    r = check_machine_params([sets[0], low], "xy-stage", FAST, tasks=SHORT["xy-stage"][:1])
+    assert not r.passed
+    assert r.cases[0].failures[0].startswith("reference: y: command limit: the set limits the "
+                                             "motor command to 0.6% of full scale")  # fmt: skip
+    assert not any(": x: command limit" in f for f in r.failures)
+
+
 def test_low_margins_and_a_contour_limit_fail_naming_the_axis_and_the_gap():
     sets = designed_sets("xy-stage", "6250", 40.0)
     r = check_machine_params(sets, "xy-stage", CheckLimits(reference_substeps=4,
