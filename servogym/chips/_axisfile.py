@@ -16,11 +16,9 @@ The multi-axis JSON file (``format_version`` 1)::
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import os
 import re
 import sys
-import warnings
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -28,14 +26,12 @@ from servogym import __version__
 from servogym.chips._paramfile import (
     FILE_FORMAT,
     FILE_FORMAT_VERSION,
-    OPTIONAL_KEYS,
     FileSchema,
     ParamFile,
     _expect,
     _load,
     created_text,
-    json_object,
-    verify_checksum,
+    finish_json,
 )
 from servogym.chips._space import ParameterError
 
@@ -119,18 +115,10 @@ def check_header_axes(
 # --------------------------------------------------------------------------------------
 
 
-def _required_keys(noun: str) -> tuple[str, ...]:
-    return (
-        "format",
-        "format_version",
-        "chip_family",
-        "chip_model",
-        "spec_version",
-        "assumptions",
-        plural("axis"),
-        "created",
-        "servogym_version",
-    )
+def _required_keys(schema: FileSchema) -> tuple[str, ...]:
+    """The single-axis file's keys with ``axes`` for ``params`` and no extra keys."""
+    keys = [k for k in schema.required_keys if k not in schema.extra_keys]
+    return tuple("axes" if k == "params" else k for k in keys)
 
 
 def write_axes_json(
@@ -168,14 +156,7 @@ def write_axes_json(
         "created": created_text(created),
         "servogym_version": __version__,
     }
-    if metrics is not None:
-        doc["metrics"] = json_object(metrics, "metrics")
-    if notes is not None:
-        doc["notes"] = json_object(notes, "notes")
-    from servogym._files import json_checksum  # servogym._files imports chips
-
-    doc["checksum"] = json_checksum(doc)
-    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+    return finish_json(doc, metrics, notes)
 
 
 def read_axes_json(
@@ -203,46 +184,20 @@ def read_axes_json(
         sets = {1: loaded.params}
     else:
         loaded, sets = _read_axes_doc(schema, doc, noun)
-    chip_model = loaded.params.model
-    if model is not None and schema.get_model(model).name != chip_model:
-        raise ParameterError(
-            f"model={schema.get_model(model).name!r} disagrees with the file's chip_model "
-            f"{chip_model!r}; pass model={chip_model!r} or model=None."
-        )
+    schema.same_model(model, loaded.params.model)
     return sets, loaded
 
 
 def _read_axes_doc(
     schema: FileSchema, doc: dict[str, Any], noun: str
 ) -> tuple[ParamFile[Any, Any], dict[int, Any]]:
-    if doc.get("format") != AXES_FORMAT:
-        raise ParameterError(
-            f"format must be {AXES_FORMAT!r} (a servogym multi-axis parameter file) or "
-            f"{FILE_FORMAT!r} (one axis); got format={doc.get('format')!r}."
-        )
-    version = doc.get("format_version")
-    if type(version) is not int or version != FILE_FORMAT_VERSION:
-        raise ParameterError(
-            f"format_version must be {FILE_FORMAT_VERSION} (the only version servogym "
-            f"{__version__} reads); got format_version={version!r}."
-        )
-    if doc.get("chip_family") != schema.family:
-        raise ParameterError(
-            f"chip_family must be {schema.family!r} for a {schema.title} parameter file; got "
-            f"chip_family={doc.get('chip_family')!r}. Read other families with their own "
-            f"importer."
-        )
-    required = _required_keys(noun)
-    missing = [k for k in required if k not in doc]
-    if missing:
-        raise ParameterError(f"the parameter file misses the keys {', '.join(missing)}.")
-    allowed = required + OPTIONAL_KEYS
-    unknown = [k for k in doc if k not in allowed]
-    if unknown:
-        raise ParameterError(
-            f"the parameter file has unknown keys {', '.join(map(repr, unknown))}; "
-            f"{AXES_FORMAT} format_version {FILE_FORMAT_VERSION} allows {', '.join(allowed)}."
-        )
+    schema.check_header(
+        doc,
+        fmt=AXES_FORMAT,
+        expected=f"{AXES_FORMAT!r} (a servogym multi-axis parameter file) or {FILE_FORMAT!r} "
+        f"(one axis)",
+        required=_required_keys(schema),
+    )
     chip = schema.get_model(_expect(doc, "chip_model", str, f"a {schema.title} chip model name"))
     entries = _expect(doc, "axes", list, f"a non-empty JSON list of {{{noun!r}: n, 'params'}}")
     if not entries:
@@ -263,41 +218,13 @@ def _read_axes_doc(
             raise ParameterError(
                 f"{where}: {noun} {number} is listed twice; a file gives each {noun} once."
             )
-        values = entry["params"]
-        if not isinstance(values, dict):
-            raise ParameterError(f"{where}.params must be a JSON object; got {values!r}.")
-        if values.get("model") != chip.name:
-            raise ParameterError(
-                f"{where}.params.model must equal chip_model {chip.name!r}; got "
-                f"params.model={values.get('model')!r}."
-            )
-        absent = [r for r in schema.required(chip) if r not in values]
-        if absent:
-            raise ParameterError(
-                f"{where}.params must give every {schema.noun} of {chip.name} (an import takes "
-                f"no defaults); missing {', '.join(absent)}."
-            )
+        values = schema.complete_values(entry["params"], chip, f"{where}.params")
         try:
             sets[number] = schema.params_type.from_dict(values)
         except ParameterError as exc:
             raise ParameterError(f"{where} ({noun} {number}): {exc}") from None
-    asm = _expect(doc, "assumptions", dict, "a JSON object of assumption switches")
-    assumptions = schema.complete_assumptions(asm, "assumptions")
-    spec = _expect(doc, "spec_version", str, "a string")
-    created_text(_expect(doc, "created", str, "an ISO 8601 timestamp string"))
-    _expect(doc, "servogym_version", str, "a string")
-    for key in ("metrics", "notes"):
-        if key in doc:
-            _expect(doc, key, dict, "a JSON object")
-    verify_checksum(doc)
-    if spec != schema.spec_version:
-        warnings.warn(
-            f"the parameter file was written for spec_version {spec!r} but this servogym "
-            f"implements {schema.spec_version!r}: the {schema.noun}s load unchanged, but the "
-            f"emulated behaviour may differ from the one its metrics were measured with.",
-            UserWarning,
-            stacklevel=user_stacklevel(),  # import_axes, load_axes: the caller's line
-        )
+    # import_axes, load_axes: the warning points at the caller's line
+    assumptions = schema.check_tail(doc, stacklevel=user_stacklevel() + 1)
     provenance = {k: v for k, v in doc.items() if k not in ("axes", "assumptions", "checksum")}
     first = sets[min(sets)]
     return ParamFile(params=first, assumptions=assumptions, provenance=provenance), sets

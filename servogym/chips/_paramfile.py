@@ -205,14 +205,7 @@ class FileSchema:
             "created": created_text(created),
             "servogym_version": __version__,
         }
-        if metrics is not None:
-            doc["metrics"] = json_object(metrics, "metrics")
-        if notes is not None:
-            doc["notes"] = json_object(notes, "notes")
-        from servogym._files import json_checksum  # servogym._files imports chips
-
-        doc["checksum"] = json_checksum(doc)
-        return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+        return finish_json(doc, metrics, notes)
 
     def read(self, text: str | bytes) -> ParamFile[Any, Any]:
         """Read a file :meth:`write` wrote; see a family's ``from_json`` for the rules.
@@ -220,44 +213,15 @@ class FileSchema:
         The spec-version warning points at the caller of the family's ``from_json``.
         """
         doc = _load(text)
-        self._check_header(doc)
+        self.check_header(doc)
         chip = self.get_model(_expect(doc, "chip_model", str, f"a {self.title} chip model name"))
         values = _expect(doc, "params", dict, f"a JSON object of {self.noun} values")
-        if values.get("model") != chip.name:
-            raise ParameterError(
-                f"params.model must equal chip_model {chip.name!r}; "
-                f"got params.model={values.get('model')!r}."
-            )
-        absent = [r for r in self.required(chip) if r not in values]
-        if absent:
-            raise ParameterError(
-                f"params must give every {self.noun} of {chip.name} (an import takes no "
-                f"defaults); missing {', '.join(absent)}."
-            )
-        params = self.params_type.from_dict(values)
+        params = self.params_type.from_dict(self.complete_values(values, chip))
         for key, extra in self.extra_keys.items():
             got = _expect(doc, key, extra.kind, extra.what)
             if got != getattr(params, key):
                 raise ParameterError(f"{key} must equal {extra.rule(params)}; got {key}={got!r}.")
-        asm = _expect(doc, "assumptions", dict, "a JSON object of assumption switches")
-        assumptions = self.complete_assumptions(asm, "assumptions")
-
-        spec = _expect(doc, "spec_version", str, "a string")
-        created_text(_expect(doc, "created", str, "an ISO 8601 timestamp string"))
-        _expect(doc, "servogym_version", str, "a string")
-        for key in ("metrics", "notes"):
-            if key in doc:
-                _expect(doc, key, dict, "a JSON object")
-        verify_checksum(doc)  # last check: a structural error gets its own message first
-        if spec != self.spec_version:
-            warnings.warn(
-                f"the parameter file was written for spec_version {spec!r} but this servogym "
-                f"implements {self.spec_version!r}: the {self.noun}s load unchanged, but the "
-                f"emulated behaviour may differ from the one its metrics were measured with. "
-                f"Evaluate the set again to refresh its metrics.",
-                UserWarning,
-                stacklevel=3,
-            )
+        assumptions = self.check_tail(doc, stacklevel=4)
         provenance = {
             k: v for k, v in doc.items() if k not in ("params", "assumptions", "checksum")
         }
@@ -271,12 +235,59 @@ class FileSchema:
             model: Chip model name or record; if given it must be the file's ``chip_model``.
         """
         params = self.read(text).params
-        if model is not None and self.get_model(model).name != params.model:
+        self.same_model(model, params.model)
+        return params
+
+    def same_model(self, model: Any, chip_model: str) -> None:
+        """Refuse a ``model`` argument (if given) other than the file's ``chip_model``."""
+        if model is not None and self.get_model(model).name != chip_model:
             raise ParameterError(
                 f"model={self.get_model(model).name!r} disagrees with the file's chip_model "
-                f"{params.model!r}; pass model={params.model!r} or model=None."
+                f"{chip_model!r}; pass model={chip_model!r} or model=None."
             )
-        return params
+
+    def complete_values(self, values: Any, chip: Any, where: str = "params") -> Any:
+        """``values`` (a file's ``params`` object, at ``where``) if it names ``chip`` and gives
+        every register of it (an import takes no defaults)."""
+        if not isinstance(values, dict):
+            raise ParameterError(f"{where} must be a JSON object; got {values!r}.")
+        if values.get("model") != chip.name:
+            raise ParameterError(
+                f"{where}.model must equal chip_model {chip.name!r}; "
+                f"got params.model={values.get('model')!r}."
+            )
+        absent = [r for r in self.required(chip) if r not in values]
+        if absent:
+            raise ParameterError(
+                f"{where} must give every {self.noun} of {chip.name} (an import takes no "
+                f"defaults); missing {', '.join(absent)}."
+            )
+        return values
+
+    def check_tail(self, doc: dict[str, Any], *, stacklevel: int) -> Any:
+        """The keys every file shares after its sets: the assumptions (returned complete),
+        the provenance strings, metrics and notes, then the checksum (last: a structural
+        error gets its own message first); a spec version other than this servogym's warns
+        (at ``stacklevel`` from here)."""
+        asm = _expect(doc, "assumptions", dict, "a JSON object of assumption switches")
+        assumptions = self.complete_assumptions(asm, "assumptions")
+        spec = _expect(doc, "spec_version", str, "a string")
+        created_text(_expect(doc, "created", str, "an ISO 8601 timestamp string"))
+        _expect(doc, "servogym_version", str, "a string")
+        for key in ("metrics", "notes"):
+            if key in doc:
+                _expect(doc, key, dict, "a JSON object")
+        verify_checksum(doc)
+        if spec != self.spec_version:
+            warnings.warn(
+                f"the parameter file was written for spec_version {spec!r} but this servogym "
+                f"implements {self.spec_version!r}: the {self.noun}s load unchanged, but the "
+                f"emulated behaviour may differ from the one its metrics were measured with. "
+                f"Evaluate the set again to refresh its metrics.",
+                UserWarning,
+                stacklevel=stacklevel,
+            )
+        return assumptions
 
     def json_functions(
         self, module: str
@@ -314,13 +325,20 @@ class FileSchema:
             function.__doc__ = doc.format(**names)
         return to_json, from_json
 
-    def _check_header(self, doc: dict[str, Any]) -> None:
-        """Format, version, family, then the set of top-level keys."""
-        fmt = doc.get("format")
-        if fmt != FILE_FORMAT:
-            raise ParameterError(
-                f"format must be {FILE_FORMAT!r} (a servogym parameter file); got format={fmt!r}."
-            )
+    def check_header(
+        self,
+        doc: dict[str, Any],
+        *,
+        fmt: str = FILE_FORMAT,
+        expected: str = f"{FILE_FORMAT!r} (a servogym parameter file)",
+        required: tuple[str, ...] | None = None,
+    ) -> None:
+        """Format (``fmt``, described as ``expected``), version, family, then the set of
+        top-level keys (``required``, the single-axis file's by default, and the optional
+        ones)."""
+        got = doc.get("format")
+        if got != fmt:
+            raise ParameterError(f"format must be {expected}; got format={got!r}.")
         version = doc.get("format_version")
         if type(version) is not int or version != FILE_FORMAT_VERSION:
             raise ParameterError(
@@ -333,16 +351,17 @@ class FileSchema:
                 f"chip_family must be {self.family!r} for a {self.title} parameter file; got "
                 f"chip_family={family!r}. Read other families with their own importer."
             )
-        required = self.required_keys
+        required = self.required_keys if required is None else required
         missing = [k for k in required if k not in doc]
         if missing:
             raise ParameterError(f"the parameter file misses the keys {', '.join(missing)}.")
         allowed = required + OPTIONAL_KEYS
         unknown = [k for k in doc if k not in allowed]
         if unknown:
+            label = "" if fmt == FILE_FORMAT else f"{fmt} "
             raise ParameterError(
                 f"the parameter file has unknown keys {', '.join(map(repr, unknown))}; "
-                f"format_version {FILE_FORMAT_VERSION} allows {', '.join(allowed)}."
+                f"{label}format_version {FILE_FORMAT_VERSION} allows {', '.join(allowed)}."
             )
 
 
@@ -387,6 +406,20 @@ _FROM_JSON_DOC = """Read a {title} JSON parameter file written by :func:`to_json
 # --------------------------------------------------------------------------------------
 # Helpers
 # --------------------------------------------------------------------------------------
+
+
+def finish_json(
+    doc: dict[str, Any], metrics: Mapping[str, Any] | None, notes: Mapping[str, Any] | None
+) -> str:
+    """A file's JSON text: ``doc`` with its optional metrics and notes, then its checksum."""
+    if metrics is not None:
+        doc["metrics"] = json_object(metrics, "metrics")
+    if notes is not None:
+        doc["notes"] = json_object(notes, "notes")
+    from servogym._files import json_checksum  # servogym._files imports chips
+
+    doc["checksum"] = json_checksum(doc)
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
 
 def assumption_lines(assumptions: Any) -> list[str]:

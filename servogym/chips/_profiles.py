@@ -37,6 +37,23 @@ def real_arg(name: str, value: Any, *, positive: bool = False) -> float:
     return x
 
 
+class TickArrays:
+    """What every family's profile derives from its arrays (a base of the frozen profile
+    dataclasses, whose ``__post_init__`` runs :func:`check_arrays`)."""
+
+    position: np.ndarray
+
+    @property
+    def n_ticks(self) -> int:
+        """Number of entries: servo ticks (PMD cycles, PMAC updates, 6000-series samples)."""
+        return int(self.position.shape[0])
+
+    @property
+    def final_position(self) -> int:
+        """The commanded position of the last entry, in whole counts."""
+        return int(self.position[-1])
+
+
 def check_arrays(profile: Any) -> int:
     """Make a frozen profile's arrays 1-D C-contiguous int64 of one length; return it.
 

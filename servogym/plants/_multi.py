@@ -825,7 +825,6 @@ def required_peak_efforts(
         One :class:`~servogym.plants.Need` per axis, in axis order (``family`` is
         ``"<family>/<axis>"``).
     """
-    from servogym.plants._feasibility import PEAK_HEADROOM, Need
 
     fam = MULTI_PLANTS[family] if isinstance(family, str) else family
     mv = fam.default_moves() if moves is None else tuple(tuple(m) for m in moves)
@@ -875,8 +874,17 @@ def required_peak_efforts(
             for k, io in enumerate(ios):
                 bias[k] = max(bias[k], abs(float(data.qfrc_bias[io.qvel_adr])))
     plant.reset()
+    return _needs(plant, inertia, bias, vel)
+
+
+def _needs(plant: MultiAxisPlant, inertia: Any, bias: Any, speed: Any) -> tuple[Any, ...]:
+    """Per axis, the :class:`~servogym.plants.Need` of joint-space peaks (N*m or N at the
+    joint): each term divided by the actuator gear, friction from the model."""
+    from servogym.plants._feasibility import PEAK_HEADROOM, Need
+
+    model, fam = plant.model, plant.family
     out = []
-    for k, io in enumerate(ios):
+    for k, io in enumerate(plant.ios):
         gear = float(model.actuator_gear[io.ctrl_index, 0])
         out.append(
             Need(
@@ -884,7 +892,7 @@ def required_peak_efforts(
                 inertia_nm=float(inertia[k]) / gear,
                 gravity_nm=float(bias[k]) / gear,
                 coulomb_nm=float(model.dof_frictionloss[io.qvel_adr]) / gear,
-                viscous_nm=float(model.dof_damping[io.qvel_adr]) * vel[k] / gear,
+                viscous_nm=float(model.dof_damping[io.qvel_adr]) * float(speed[k]) / gear,
                 peak_nm=io.peak_torque_nm,
                 headroom=PEAK_HEADROOM,
             )
@@ -930,7 +938,6 @@ def commanded_efforts(
     Returns:
         One :class:`~servogym.plants.Need` per axis, in axis order.
     """
-    from servogym.plants._feasibility import PEAK_HEADROOM, Need
 
     model, data = plant.model, plant.data
     ios = plant.ios
@@ -960,21 +967,7 @@ def commanded_efforts(
             inertia = np.maximum(inertia, np.abs(m_a))
             bias = np.maximum(bias, np.abs(data.qfrc_bias[dofs]))
     plant.reset()
-    out = []
-    for k, io in enumerate(ios):
-        gear = float(model.actuator_gear[io.ctrl_index, 0])
-        out.append(
-            Need(
-                family=f"{plant.family.name}/{plant.family.axes[k]}",
-                inertia_nm=float(inertia[k]) / gear,
-                gravity_nm=float(bias[k]) / gear,
-                coulomb_nm=float(model.dof_frictionloss[io.qvel_adr]) / gear,
-                viscous_nm=float(model.dof_damping[io.qvel_adr]) * float(speed[k]) / gear,
-                peak_nm=io.peak_torque_nm,
-                headroom=PEAK_HEADROOM,
-            )
-        )
-    return tuple(out)
+    return _needs(plant, inertia, bias, speed)
 
 
 def worst_sampled_efforts(family: MultiAxisPlantFamily | str) -> tuple[Any, ...]:

@@ -21,7 +21,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._profiles import check_arrays, int_arg
+from servogym.chips._profiles import TickArrays, check_arrays, int_arg
 from servogym.chips._space import ParameterError
 from servogym.chips.parker6k._params import SSFR_PERIOD_US
 
@@ -61,7 +61,7 @@ class ProfileAssumptions(AssumptionSet):
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class Parker6kProfile:
+class Parker6kProfile(TickArrays):
     """A commanded move, one entry per servo sample.
 
     Entry 0 is the first servo sample after the move starts. The arrays are 1-D, C-contiguous
@@ -87,16 +87,6 @@ class Parker6kProfile:
 
     def __post_init__(self) -> None:
         check_arrays(self)
-
-    @property
-    def n_ticks(self) -> int:
-        """Number of servo samples (entries)."""
-        return int(self.position.shape[0])
-
-    @property
-    def final_position(self) -> int:
-        """The commanded position of the last entry, in counts."""
-        return int(self.position[-1])
 
 
 def _real(name: str, value: Any, high: float) -> float:

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from servogym.chips._profiles import check_arrays, int_arg, real_arg
+from servogym.chips._profiles import TickArrays, check_arrays, int_arg, real_arg
 from servogym.chips._space import ParameterError
 
 S32_MIN, S32_MAX = -(1 << 31), (1 << 31) - 1
@@ -33,7 +33,7 @@ FRACTION_BITS = 5
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class Profile:
+class Profile(TickArrays):
     """A commanded trajectory, one entry per servo update.
 
     Entry 0 is the first servo update after the move starts. All arrays are 1-D,
@@ -69,11 +69,6 @@ class Profile:
             raise ValueError("Profile.velocity holds the commanded fraction, 0..31 (1/32 count).")
 
     @property
-    def n_ticks(self) -> int:
-        """Number of servo updates (entries)."""
-        return int(self.position.shape[0])
-
-    @property
     def fraction(self) -> np.ndarray:
         """The commanded position's fraction in 1/32 count (the ``velocity`` array)."""
         return self.velocity
@@ -88,11 +83,6 @@ class Profile:
     def commanded_velocity(self) -> np.ndarray:
         """CV: the fine position's change per servo update, 1/32 count/cycle (from rest)."""
         return np.diff(self.fine_position, prepend=32 * self.start)
-
-    @property
-    def final_position(self) -> int:
-        """The commanded position of the last entry, in whole counts."""
-        return int(self.position[-1])
 
 
 _int_arg = int_arg

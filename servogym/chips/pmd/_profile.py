@@ -22,7 +22,7 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from servogym.chips._assumptions import AssumptionSet
-from servogym.chips._profiles import check_arrays, int_arg, real_arg
+from servogym.chips._profiles import TickArrays, check_arrays, int_arg, real_arg
 from servogym.chips._space import ParameterError
 
 ONE_1616 = 1 << 16
@@ -105,7 +105,7 @@ _DEFAULT_ASSUMPTIONS = ProfileAssumptions()
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class Profile:
+class Profile(TickArrays):
     """A commanded trajectory, one entry per servo cycle.
 
     Entry 0 is the first cycle after the move starts. All arrays are 1-D, C-contiguous
@@ -135,16 +135,6 @@ class Profile:
                 f"Profile.move_ticks must satisfy 0 <= move_ticks <= n_ticks={n}; "
                 f"got move_ticks={self.move_ticks}."
             )
-
-    @property
-    def n_ticks(self) -> int:
-        """Number of servo cycles (entries)."""
-        return int(self.position.shape[0])
-
-    @property
-    def final_position(self) -> int:
-        """The commanded position of the last entry, in counts."""
-        return int(self.position[-1])
 
 
 # --------------------------------------------------------------------------------------
