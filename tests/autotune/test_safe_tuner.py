@@ -6,12 +6,14 @@ import json
 import math
 import subprocess
 import sys
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from servogym.autotune import TuneConfig, TuneError, get_tuner, run_study
-from servogym.autotune._safe import CENTRE_KEY, SafeTuner
+from servogym.autotune._safe import _GP, CENTRE_KEY, SafeTuner, _Model, compressed
 from servogym.autotune._tuners import DEFAULT_MULTI_OBJECTIVE_TUNER, DEFAULT_TUNER
 from servogym.chips._family import all_models
 from servogym.cli import app
@@ -141,6 +143,43 @@ def test_on_a_cheap_problem_it_is_safer_than_tpe_and_ends_no_worse_than_its_star
     n_unsafe = {k: sum(map(unsafe, r.trials)) for k, r in runs.items()}
     assert n_unsafe["safe"] <= 0.2 * 40
     assert n_unsafe["safe"] < 0.5 * n_unsafe["tpe"]
+
+
+def test_far_violations_keep_their_order_and_a_slope():
+    """Within one limit the scaled value is itself; beyond, 1 + ln|v| with its sign: a
+    following error 10x its limit reads worse than one 5x (clipped at 2 they read alike)."""
+    for v in (-1.0, -0.3, 0.0, 0.7, 1.0):
+        assert compressed(v) == v
+    far = [compressed(v) for v in (1.5, 2.0, 5.0, 10.0, 1e3)]
+    assert far == sorted(far) and len(set(far)) == len(far)
+    assert compressed(10.0) == pytest.approx(1 + math.log(10.0))
+    assert compressed(-10.0) == -compressed(10.0)
+    assert compressed(1.0 + 1e-9) == pytest.approx(1.0, abs=1e-8)  # continuous at the limit
+    assert all(math.isfinite(compressed(v)) for v in (math.inf, -math.inf, math.nan))
+
+
+@pytest.mark.parametrize("feasible", [True, False])
+def test_a_set_already_asked_is_passed_over_for_the_next_best(feasible):
+    """A small trust region on integer registers rounds many points to one set (seen: one
+    set asked 5 times in 48 samples while nothing was safe): the proposal is the best
+    candidate whose register values no trial has asked, safe or not yet safe alike."""
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-1, 1, (12, 2))
+    y = np.column_stack([x[:, 0], x[:, 1] - 1.5])  # cost, one constraint (safe where x1 < 1.5)
+    gp = _GP(x, y, np.zeros(2), np.array([1e-3, 0.5]), 0.4)
+    cands = rng.uniform(-1, 1, (40, 2))
+    model = SimpleNamespace(
+        tuner=SafeTuner(), _taken=set(), _model_safe=lambda c: True,
+        _key=lambda c: tuple(np.round(c, 6)),
+    )  # fmt: skip
+    first, _ = _Model._choose(model, gp, cands, np.ones(2), feasible)
+    model._taken = {model._key(first)}
+    second, _ = _Model._choose(model, gp, cands, np.ones(2), feasible)
+    assert second is not None and model._key(second) != model._key(first)
+    # and with every candidate asked, a known one rather than none (the search goes on)
+    model._taken = {model._key(c) for c in cands}
+    last, _ = _Model._choose(model, gp, cands, np.ones(2), feasible)
+    assert (last is None) if feasible else (model._key(last) == model._key(first))
 
 
 def _refuse(monkeypatch, rule):
