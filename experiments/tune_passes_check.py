@@ -3,7 +3,7 @@
     .venv/bin/python experiments/tune_passes_check.py [--budget 200] [--chips MC2100,...]
         [--points ends | all-plants | PLANT:NAME=VALUE,...]
 
-Runs the default tune (TPE from the model-based design, margin constraints, the check
+Runs the default tune (the safe tuner from the model-based design, margin constraints, the check
 choosing) through the command a user runs, ``servogym tune ... --json``, for every chip model
 given at every plant point, one run folder each under ``runs/tune_passes_check/``; then, for
 a run that wrote its hardware files, checks the written ``best_params.json`` again with

@@ -282,6 +282,8 @@ def test_dry_run_estimate_times_real_evaluations_not_the_kept_one(tmp_path):
     assert res.exit_code == 0, res.output
     ms = float(re.search(r"mean\s+evaluation\s+([\d.]+) ms", res.output).group(1))
     assert ms > 2.0
+    # and a dry run leaves the folder's config.json (the last real run's) alone
+    assert not (tmp_path / "config.json").exists()
 
 
 def test_a_failing_job_in_the_process_pool_loses_no_finished_record(tmp_path):

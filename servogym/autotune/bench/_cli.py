@@ -315,7 +315,8 @@ def benchmark_command(
         "seeds": seeds, "workers": workers, "limits": {k: vars(v) for k, v in limits.items()},
         "instances": ids, "n_jobs": len(jobs), "scheduler": scheduler,
     }  # fmt: skip
-    (out / "config.json").write_text(json.dumps(config, indent=1) + "\n")
+    if not dry_run:  # a dry run leaves the folder's record of the last real run alone
+        (out / "config.json").write_text(json.dumps(config, indent=1) + "\n")
     n_procs, where = workers, f"{workers} process(es)"
     if scheduler is not None:
         n_procs = cluster_threads
