@@ -194,6 +194,9 @@ class _Model:
         self._predicted: dict[int, tuple[float, float]] = {}  # a row's model margins
         self._keys: dict[int, tuple[int, ...]] = {}  # a row's searched register values
         self._taken: set[tuple[int, ...]] = set()  # the register sets asked (rows, pending)
+        # the rigid model's raw margins of a set (by _key): a proposal's are computed when it
+        # is screened and reused when its evaluation calibrates the model
+        self._raw: dict[tuple[int, ...], tuple[float, float]] = {}
 
     def _unit(self, params: Mapping[str, float]) -> np.ndarray:
         return np.array([float(params[u]) for u in self.unit_names])
@@ -483,7 +486,9 @@ class _Model:
             if r.margins is None or r.registers is None:
                 continue
             if r.number not in self._predicted:
-                self._predicted[r.number] = self.predictor.raw(r.registers)
+                key = self._keys.get(r.number)  # proposed by this model: predicted then
+                raw = self._raw.get(key) if key is not None else None
+                self._predicted[r.number] = raw or self.predictor.raw(r.registers)
             pairs.append((self._predicted[r.number], r.margins))
         if pairs:
             self.predictor.calibrate(np.array([p for p, _ in pairs]),
@@ -494,12 +499,15 @@ class _Model:
         least the limits plus :attr:`SafeTuner.model_buffer` (always, without a model)."""
         if self.predictor is None:
             return True
-        unit = dict(zip(self.unit_names, (float(v) for v in x), strict=True))
-        try:
-            gm, pm = self.predictor.predicted(self.space.values_from_unit(unit))
-        except ValueError:  # a set the chip refuses: the session records the refusal
-            return True
-        return self.predictor.clears(gm, pm, self.tuner.model_buffer)
+        key = self._key(x)
+        if key not in self._raw:
+            unit = dict(zip(self.unit_names, (float(v) for v in x), strict=True))
+            try:
+                self._raw[key] = self.predictor.raw(self.space.values_from_unit(unit))
+            except ValueError:  # a set the chip refuses: the session records the refusal
+                return True
+        gm, pm = np.subtract(self._raw[key], self.predictor.bias)
+        return self.predictor.clears(float(gm), float(pm), self.tuner.model_buffer)
 
 
 def _sampler_class() -> type:
