@@ -289,3 +289,8 @@ def test_stage2_refinement_keeps_provenance_and_the_superseded_note(tmp_path):
     assert doc["instances"] == before["instances"]
     assert doc["superseded"] == before["superseded"] == superseded_note(SUITE_VERSION)
     assert json.loads(path.read_text()) == doc
+    # a second pass keeps the first's provenance: "stage2" is the latest, the history all
+    again = refine_from_runs(SUITE_VERSION, runs, path, n_trials=8, run_label="again")
+    history = again["method"]["stage2_history"]
+    assert [h["seeded_from"] for h in history[-2:]] == ["tiny", "again"]
+    assert again["method"]["stage2"] == history[-1]

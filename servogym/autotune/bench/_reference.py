@@ -446,6 +446,10 @@ def refine_from_runs(
             }
             if "check" in new:
                 recs[i]["check"] = new["check"]
+    # every stage-2 pass is kept: "stage2" is the latest, "stage2_history" all in order
+    history = doc["method"].setdefault("stage2_history", [])
+    if "stage2" in doc["method"] and not history:
+        history.append(doc["method"]["stage2"])  # a file from before the history was kept
     doc["method"]["stage2"] = {
         "description": refine_from_runs.__doc__.split("\n\n")[1].strip(),
         "n_trials": n_trials,
@@ -455,6 +459,7 @@ def refine_from_runs(
         "instances_improved": sorted(changed),
         "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
+    history.append(doc["method"]["stage2"])
     tmp = Path(out_path).with_suffix(".tmp")
     tmp.write_text(json.dumps(doc, indent=1) + "\n")
     tmp.replace(out_path)
