@@ -169,9 +169,13 @@ def plan_jobs(
     return jobs, skipped
 
 
-SAMPLER_OVERHEAD_S = {"tpe": 0.040, "cmaes": 0.035, "random": 0.010, "sobol": 0.010}
+SAMPLER_OVERHEAD_S = {
+    "tpe": 0.040, "cmaes": 0.035, "random": 0.010, "sobol": 0.010, "gp": 0.45, "safe": 0.010,
+}  # fmt: skip
 """Measured seconds per trial the session and sampler add to an evaluation (2-core machine,
-batches of one). GP grows with the trials: about 0.11 * n seconds at trial n."""
+batches of one). GP's is constant since its history is capped (``CappedGPSampler``: 100
+trials of servobench-v1/mc2100/rotary/light/fast and 6250/vertical-axis/light/fast took 58
+and 33 s, about 0.3-0.55 s per trial; it grew as about 0.11 * n s at trial n before)."""
 
 
 def estimate_seconds(jobs: Sequence[Job], eval_s: Mapping[str, float]) -> float:
@@ -181,9 +185,7 @@ def estimate_seconds(jobs: Sequence[Job], eval_s: Mapping[str, float]) -> float:
     total = 0.0
     for job in jobs:
         e = eval_s[job.instance]
-        if job.tuner == "gp":
-            total += job.budget * e + 0.11 * job.budget * job.budget / 2
-        elif job.tuner in SAMPLER_OVERHEAD_S:
+        if job.tuner in SAMPLER_OVERHEAD_S:
             total += job.budget * (e + SAMPLER_OVERHEAD_S[job.tuner])
         else:
             total += min(job.budget, 30) * 3 * e
