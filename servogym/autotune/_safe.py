@@ -191,7 +191,6 @@ class _Model:
         self.limits = (c.min_gain_margin_db, c.min_phase_margin_deg)
         fit = session.study.user_attrs.get(FIT_KEY)
         self.predictor = predictor_from_fit(session, fit) if fit else None
-        self._predicted: dict[int, tuple[float, float]] = {}  # a row's model margins
         self._keys: dict[int, tuple[int, ...]] = {}  # a row's searched register values
         self._taken: set[tuple[int, ...]] = set()  # the register sets asked (rows, pending)
         # the rigid model's raw margins of a set (by _key): a proposal's are computed when it
@@ -485,11 +484,10 @@ class _Model:
         for r in rows:
             if r.margins is None or r.registers is None:
                 continue
-            if r.number not in self._predicted:
-                key = self._keys.get(r.number)  # proposed by this model: predicted then
-                raw = self._raw.get(key) if key is not None else None
-                self._predicted[r.number] = raw or self.predictor.raw(r.registers)
-            pairs.append((self._predicted[r.number], r.margins))
+            key = self._keys[r.number]  # a proposal's margins were predicted when screened
+            if key not in self._raw:
+                self._raw[key] = self.predictor.raw(r.registers)
+            pairs.append((self._raw[key], r.margins))
         if pairs:
             self.predictor.calibrate(np.array([p for p, _ in pairs]),
                                      np.array([m for _, m in pairs]))  # fmt: skip
