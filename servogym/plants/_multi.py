@@ -825,7 +825,6 @@ def required_peak_efforts(
         One :class:`~servogym.plants.Need` per axis, in axis order (``family`` is
         ``"<family>/<axis>"``).
     """
-
     fam = MULTI_PLANTS[family] if isinstance(family, str) else family
     mv = fam.default_moves() if moves is None else tuple(tuple(m) for m in moves)
     if len(mv) != fam.n_axes:
@@ -938,7 +937,6 @@ def commanded_efforts(
     Returns:
         One :class:`~servogym.plants.Need` per axis, in axis order.
     """
-
     model, data = plant.model, plant.data
     ios = plant.ios
     n = len(ios)
@@ -947,6 +945,7 @@ def commanded_efforts(
     full = np.zeros((model.nv, model.nv))
     dofs = [io.qvel_adr for io in ios]
     inertia, bias, speed = np.zeros(n), np.zeros(n), np.zeros(n)
+    mujoco.mj_resetData(model, data)  # the other joints at rest; each sample sets the axes'
     for q in trajectories:
         q = np.asarray(q, dtype=float)
         if q.ndim != 2 or q.shape[1] != n:
@@ -957,7 +956,6 @@ def commanded_efforts(
         acc = (padded[2 * h :] - 2 * q + padded[: -2 * h]) / (h * dt) ** 2
         speed = np.maximum(speed, np.max(np.abs(vel), axis=0))
         for i in range(0, len(q), stride):
-            mujoco.mj_resetData(model, data)
             for k, io in enumerate(ios):
                 data.qpos[io.qpos_adr] = q[i, k]
                 data.qvel[io.qvel_adr] = vel[i, k]
