@@ -11,7 +11,8 @@ For each scenario of ``servogym.envs.SCENARIOS`` (``--scenarios`` picks some):
    fixed values and moves;
 2. per point, a set tuned there (``servogym tune``'s machinery: the model-based design start,
    ``--tuner`` over ``--budget`` evaluations with the margin and saturation constraints, then
-   ``check_candidates``: the best trial that passes ``servogym check``);
+   ``check_candidates``: the cheapest feasible trial that passes ``servogym check``, of at
+   most ``--check-candidates`` tried);
 3. a robust set: tuned over ``--robust`` plant draws from the scenario's whole distribution
    (the scheduled parameter over empty .. part high, the other drawn parameters over the
    scenario's ranges), mean cost, checked on those draws too;
@@ -51,9 +52,13 @@ def _parse() -> argparse.Namespace:
     ap.add_argument("--points", type=int, default=4, help="operating points K (>= 2)")
     ap.add_argument("--budget", type=int, default=150, help="evaluations per tuned set")
     ap.add_argument("--robust", type=int, default=8, help="plant draws of the robust set")
-    ap.add_argument("--tuner", default="tpe")
+    ap.add_argument("--tuner", default=None, help="default: servogym tune's default (safe)")
     ap.add_argument("--episodes", type=int, default=100, help="Schedule-env episodes per policy")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--check-candidates", type=int, default=20,
+        help="feasible trials checked, cheapest first, until one passes (tune's default: 5)",
+    )  # fmt: skip
     ap.add_argument("--workers", type=int, default=1, help="evaluation threads per study")
     ap.add_argument("--label", default="full", help="a name stored with every line (smoke)")
     ap.add_argument(
@@ -62,10 +67,15 @@ def _parse() -> argparse.Namespace:
     )  # fmt: skip
     ap.add_argument("--out", type=Path, default=RESULTS / "oracle.jsonl")
     args = ap.parse_args()
-    for name in ("points", "budget", "robust", "episodes", "workers"):
+    if args.tuner is None:
+        from servogym.autotune._tuners import DEFAULT_TUNER
+
+        args.tuner = DEFAULT_TUNER
+    for name in ("points", "budget", "robust", "episodes", "workers", "check_candidates"):
         low = 2 if name == "points" else 1
         if getattr(args, name) < low:
-            raise SystemExit(f"--{name} must be >= {low}; got --{name} {getattr(args, name)}.")
+            flag = name.replace("_", "-")
+            raise SystemExit(f"--{flag} must be >= {low}; got --{flag} {getattr(args, name)}.")
     return args
 
 
@@ -107,11 +117,13 @@ def _config(s, args, point: float | None):
         return TuneConfig(chip=s.chip_model, plant=s.plant, out=Path("unused"),
                           budget=args.budget, tuner=args.tuner, plant_params=dict(s.plant_values),
                           plant_ranges=ranges, seed=args.seed, workers=args.workers,
-                          robust=args.robust, moves=s.all_moves, search=search)  # fmt: skip
+                          robust=args.robust, moves=s.all_moves, search=search,
+                          check_candidates=args.check_candidates)  # fmt: skip
     values = {**dict(s.plant_values), s.param: point}
     return TuneConfig(chip=s.chip_model, plant=s.plant, out=Path("unused"), budget=args.budget,
                       tuner=args.tuner, plant_params=values, seed=args.seed,
-                      workers=args.workers, moves=s.all_moves, search=search)  # fmt: skip
+                      workers=args.workers, moves=s.all_moves, search=search,
+                      check_candidates=args.check_candidates)  # fmt: skip
 
 
 def tune_set(s, args, point: float | None) -> dict[str, Any]:
@@ -246,7 +258,13 @@ def main() -> None:
             if _key(rec) in done:
                 continue
             t0 = time.perf_counter()
-            rec |= {"value": v, "tuner": args.tuner, "robust": args.robust, "seed": args.seed}
+            rec |= {
+                "value": v,
+                "tuner": args.tuner,
+                "robust": args.robust,
+                "seed": args.seed,
+                "check_candidates": args.check_candidates,
+            }
             rec |= tune_set(s, args, v)
             rec["cross"] = cross_costs(s, rec["values"], points)
             rec["elapsed_s"] = time.perf_counter() - t0

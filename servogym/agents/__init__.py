@@ -7,9 +7,11 @@ from servogym.agents._baselines import NOMINAL_SETS, nominal_set
 from servogym.agents._evaluate import (
     ConstantPolicy,
     EpisodeOutcome,
+    GainTablePolicy,
     ModelPolicy,
     baseline_policies,
     paired_difference,
+    reference_env,
     run_episodes,
     summarize,
 )
@@ -29,6 +31,7 @@ __all__ = [
     "NOMINAL_SETS",
     "ConstantPolicy",
     "EpisodeOutcome",
+    "GainTablePolicy",
     "ModelPolicy",
     "baseline_policies",
     "load_model",
@@ -36,6 +39,7 @@ __all__ = [
     "make_env",
     "nominal_set",
     "paired_difference",
+    "reference_env",
     "residual_env_kwargs",
     "run_episodes",
     "summarize",

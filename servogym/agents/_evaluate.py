@@ -42,6 +42,59 @@ class ConstantPolicy:
         return self.action.copy()
 
 
+class GainTablePolicy:
+    """An industrial gain table: register sets tuned at K operating points of the scheduled
+    parameter; before each move the set of the point nearest (in log scale) to the load the
+    observation reports (:meth:`servogym.envs.ScheduleEnv.observed_load`), as a controller
+    with stored gain sets chooses one per move. Acts in ``env``'s action space (the unit box
+    of registers, or any action map with ``from_values``).
+
+    Args:
+        env: The env the table runs on (a Schedule env observing the condition).
+        table: ``(operating point, register values)`` pairs, K >= 1, points > 0.
+    """
+
+    def __init__(self, env: Any, table: Iterable[tuple[float, Mapping[str, int]]]) -> None:
+        import math
+
+        self.env = env.unwrapped
+        rows = [(float(p), dict(v)) for p, v in table]
+        if not rows or any(not math.isfinite(p) or p <= 0 for p, _ in rows):
+            raise ValueError(
+                f"table must hold at least one (point, values) pair with a point > 0; got "
+                f"points {[p for p, _ in rows]}."
+            )
+        self.points = np.log([p for p, _ in rows])
+        self.actions = [self.env.actions.from_values(v) for _, v in rows]
+        self.env.observed_load(np.zeros(self.env.observation_space.shape))  # condition=True?
+
+    def __call__(self, obs: np.ndarray) -> Any:
+        load = np.log(self.env.observed_load(obs))
+        return self.actions[int(np.argmin(np.abs(self.points - load)))].copy()
+
+
+def reference_env(env: Any) -> Any:
+    """A twin of a made env whose loop integrates on the fine reference (RK4 with
+    :data:`servogym.sim.REFERENCE_SUBSTEPS` substeps per servo period; docs/simulation.md):
+    the same id and keyword arguments, so a seed gives the same plant, part and moves. What
+    a result is re-checked on before it is reported."""
+    import dataclasses
+
+    import gymnasium as gym
+
+    from servogym.sim import REFERENCE_SUBSTEPS
+
+    spec = env.spec
+    if spec is None:
+        raise ValueError("reference_env needs an env made by gymnasium.make (it has no spec)")
+    kwargs = dict(spec.kwargs)
+    u = env.unwrapped
+    for name in ("plant_range", "moves"):  # part of the scenario now
+        kwargs.pop(name, None)
+    sc = dataclasses.replace(u.scenario, substeps=REFERENCE_SUBSTEPS)
+    return gym.make(spec.id, **{**kwargs, "scenario": sc})
+
+
 class ModelPolicy:
     """An SB3 model's deterministic action, in the action space of the env it trained on
     (a run that acted around a set ran the env's own residual action:

@@ -363,6 +363,23 @@ class ScheduleEnv(gym.Env):
         self._k = n_moves
         self._last: tuple[str, Any] | None = None
         self.part_value = self._empty
+        self._load_index = self._n_move + n_state if self.condition else None
+
+    def observed_load(self, obs: np.ndarray) -> float:
+        """The scheduled parameter an observation reports for the coming move (the ``load``
+        condition feature mapped back from [-1, 1] to its unit): what a gain table reads.
+
+        Raises:
+            ValueError: when the env does not observe the condition (``condition=False``).
+        """
+        if self._load_index is None:
+            raise ValueError(
+                "observed_load needs an env that observes the condition (condition=True; the "
+                "scenario ids do)."
+            )
+        lo, hi = math.log(self._empty), math.log(max(self._part[1], self._empty))
+        t = (float(np.asarray(obs)[self._load_index]) + 1.0) / 2.0
+        return float(math.exp(lo + t * (hi - lo)))
 
     # -- the episode's plan ---------------------------------------------------------------
 

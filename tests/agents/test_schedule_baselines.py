@@ -1,0 +1,149 @@
+"""The gain-scheduling study's pieces: the observed load, the gain table, the reference twin
+of an env, and experiments/schedule_policies.py's baselines and intervals (issue 21)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import servogym  # noqa: F401
+from servogym.agents import ConstantPolicy, GainTablePolicy, reference_env, run_episodes
+from servogym.sim import REFERENCE_SUBSTEPS
+
+ROTARY = "servogym/Schedule-PMD-RotaryInertia-v1"
+_SCRIPT = Path(__file__).parents[2] / "experiments" / "schedule_policies.py"
+
+
+@pytest.fixture(scope="module")
+def study():
+    sys.path.insert(0, str(_SCRIPT.parent))
+    spec = importlib.util.spec_from_file_location("schedule_policies", _SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_observed_load_reads_the_part_on_loaded_moves_and_empty_otherwise():
+    env = gym.make(ROTARY, action_type="unit", n_moves=4)
+    u = env.unwrapped
+    obs, info = env.reset(seed=7)
+    seen = [u.observed_load(obs)]
+    for _ in range(3):
+        obs, *_, info = env.step(u.actions.from_values({}))
+        seen.append(u.observed_load(obs))
+    part, empty = info["part_value"], u.scenario.plant_values.get("load_inertia_kgm2", 3e-5)
+    # even moves run empty, odd ones carry the part
+    assert seen[0] == pytest.approx(empty, rel=1e-9)
+    assert seen[1] == pytest.approx(part, rel=1e-9)
+    assert seen[2] == pytest.approx(empty, rel=1e-9)
+    assert seen[3] == pytest.approx(part, rel=1e-9)
+    assert part > 3 * empty
+
+
+def test_observed_load_needs_the_condition():
+    env = gym.make("servogym/Schedule-PMD-Rotary-v1", n_moves=2)
+    with pytest.raises(ValueError, match="condition=True"):
+        env.unwrapped.observed_load(np.zeros(env.observation_space.shape))
+    with pytest.raises(ValueError, match="condition=True"):
+        GainTablePolicy(env, [(1e-4, {"kp": 10})])
+
+
+def test_gain_table_chooses_the_nearest_point_in_log_scale():
+    env = gym.make(ROTARY, action_type="unit", n_moves=2)
+    u = env.unwrapped
+    light, heavy = {"kp": 30, "kd": 100}, {"kp": 90, "kd": 400}
+    table = GainTablePolicy(env, [(3e-5, light), (9e-4, heavy)])
+    obs, _ = env.reset(seed=3)
+    assert u.actions.to_values(table(obs))["kp"] == 30  # empty: the light set
+    obs, *_ = env.step(table(obs))
+    load = u.observed_load(obs)
+    want = heavy if abs(math.log(load / 9e-4)) < abs(math.log(load / 3e-5)) else light
+    assert u.actions.to_values(table(obs))["kp"] == want["kp"]
+    for bad in ([], [(0.0, light)], [(float("nan"), light)]):
+        with pytest.raises(ValueError, match="point > 0"):
+            GainTablePolicy(env, bad)
+
+
+def test_reference_env_integrates_finer_and_draws_the_same_episode():
+    env = gym.make(ROTARY, n_moves=2)
+    ref = reference_env(env)
+    assert env.unwrapped.scenario.substeps in (None, 1)
+    assert ref.unwrapped.scenario.substeps == REFERENCE_SUBSTEPS
+    assert ref.action_space == env.action_space
+    o1, i1 = env.reset(seed=11)
+    o2, i2 = ref.reset(seed=11)
+    np.testing.assert_array_equal(o1, o2)
+    assert i1["part_value"] == i2["part_value"]
+    assert env.unwrapped.plant_values == ref.unwrapped.plant_values
+    a = np.zeros(env.action_space.shape, dtype=np.float32)
+    (c1,) = run_episodes(env, ConstantPolicy(a), [11])
+    (c2,) = run_episodes(ref, ConstantPolicy(a), [11])
+    # the same set on a finer integration: close, not identical
+    assert c1.mean_cost != c2.mean_cost
+    assert c2.mean_cost == pytest.approx(c1.mean_cost, rel=0.2)
+
+
+def test_reference_env_needs_a_made_env():
+    from servogym.envs import ScheduleEnv
+
+    with pytest.raises(ValueError, match=r"gymnasium\.make"):
+        reference_env(ScheduleEnv("MC2100", "rotary", n_moves=2))
+
+
+def _oracle_lines(tmp_path: Path, passed: dict[str, bool]) -> Path:
+    path = tmp_path / "oracle.jsonl"
+    cross = {"0": [1.0, 9.0, 20.0], "1": [3.0, 2.0, 8.0], "2": [30.0, 6.0, 4.0],
+             "robust": [2.0, 3.0, 7.0]}  # fmt: skip
+    lines = []
+    for i, point in enumerate(["0", "1", "2", "robust"]):
+        lines.append({"kind": "set", "scenario": "RotaryInertia", "label": "t", "budget": 5,
+                      "points": 3, "point": i if point != "robust" else "robust",
+                      "value": [3e-5, 1.6e-4, 9e-4][i] if point != "robust" else None,
+                      "values": {"kp": 10 + i}, "cross": cross[point],
+                      "check_passed": passed[point]})  # fmt: skip
+    path.write_text("\n".join(json.dumps(x) for x in lines) + "\n{torn")
+    return path
+
+
+def test_baselines_take_only_checked_sets(study, tmp_path):
+    from servogym.envs._scenarios import get_scenario
+
+    s = get_scenario("RotaryInertia")
+    every = {"0": True, "1": True, "2": True, "robust": True}
+    b = study.baselines(s, _oracle_lines(tmp_path, every), "t", 5)
+    assert b["best_fixed"] == "robust"  # mean 4.0 against 10, 4.33, 13.3
+    assert b["oracle_mean_cost"] == pytest.approx((1.0 + 2.0 + 4.0) / 3)
+    assert [p for p, _ in b["table"]] == [3e-5, 1.6e-4, 9e-4]
+    some = {"0": True, "1": True, "2": False, "robust": False}
+    b = study.baselines(s, _oracle_lines(tmp_path, some), "t", 5)
+    assert b["best_fixed"] == "1"
+    assert b["table_points"] == [3e-5, 1.6e-4]
+    assert b["best_fixed_checked"] and b["table_checked"]
+    with pytest.raises(SystemExit, match=r"schedule_oracle\.py --scenarios RotaryInertia"):
+        study.baselines(s, _oracle_lines(tmp_path, every), "other", 5)
+
+
+def test_bootstrap_intervals_hold_the_estimate(study):
+    rng = np.random.default_rng(0)
+    a = rng.lognormal(0.0, 0.3, 100)
+    b = a * 1.5 + rng.normal(0, 0.05, 100)
+    lo, hi = study.bootstrap_ratio(a, b)
+    assert lo < a.mean() / b.mean() < hi
+    assert hi < 0.75  # paired: the ratio is tight
+    lo, hi = study.bootstrap_mean(a)
+    assert lo < a.mean() < hi
+    assert study.bootstrap_mean(np.full(5, 2.0)) == [2.0, 2.0]
+
+
+def test_hyperparameters_come_from_the_zoo_files(study):
+    hp = study.hyperparameters("sac", ROTARY)
+    assert hp["policy_kwargs"] == {"net_arch": [128, 128]}
+    assert "n_timesteps" not in hp and "policy" not in hp
+    assert study.hyperparameters("ppo", "servogym/Schedule-Parker6K-StoredSets-v1")["n_steps"]
