@@ -15,9 +15,11 @@ For each scenario of ``servogym.envs.SCENARIOS`` (``--scenarios`` picks some):
    study's: each point's own set at that point (``oracle_basis`` says so).
 2. **Policy**: ``servogym.agents.train`` (SB3; hyperparameters from
    ``servogym/agents/hyperparams/<algo>.yml``, 2 envs in subprocesses) for at most
-   ``--minutes`` of wall time on the scenario's registered id; the Box ids act around the
-   best fixed set (``center``: a zero action runs it), the 6250's picks one of its five
-   stored sets. Resumable: a run folder that has trained its minutes is not trained again.
+   ``--minutes`` of wall time on the scenario's registered id; on the Box ids the policy
+   refines the gain table (``center_table``: its zero action runs the table's set for the
+   coming move's load, its action reaches ``--residual-scale`` around it; ``--center
+   best-fixed``: around the best fixed set), the 6250's picks one of its five stored sets.
+   Resumable: a run folder that has trained its minutes is not trained again.
 3. **Evaluation**: every policy on the same ``--episodes`` held-out seeds (from
    ``--eval-seed``, far from the training seeds), on the default integration and again on the
    **reference integration** (RK4, 32 substeps: ``servogym.agents.reference_env``; the policy
@@ -64,6 +66,12 @@ def _parse(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--minutes", type=float, default=60.0, help="wall time of training (<= 60)")
     ap.add_argument("--timesteps", type=int, default=200_000, help="training steps at most")
     ap.add_argument("--seed", type=int, default=0, help="the agent's and training envs' seed")
+    ap.add_argument(
+        "--center", choices=("table", "best-fixed"), default="table",
+        help="what the policy's zero action runs: the gain table's set for the load, or the "
+        "best fixed set",
+    )  # fmt: skip
+    ap.add_argument("--residual-scale", type=float, default=0.25, help="the residual's reach")
     ap.add_argument("--episodes", type=int, default=100, help="held-out episodes per policy")
     ap.add_argument("--eval-seed", type=int, default=EVAL_SEED, help="first held-out seed")
     ap.add_argument("--integrations", default="default,reference")
@@ -76,6 +84,8 @@ def _parse(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--episodes-out", type=Path, default=RESULTS / "episodes.jsonl")
     ap.add_argument("--out", type=Path, default=RESULTS / "summary.json")
     args = ap.parse_args(argv)
+    if not 0 < args.residual_scale <= 2:
+        raise SystemExit(f"--residual-scale must be in (0, 2]; got {args.residual_scale}.")
     if not 0 < args.minutes <= 60:
         raise SystemExit(f"--minutes must be in (0, 60]; got --minutes {args.minutes}.")
     for name in ("episodes", "timesteps", "workers", "oracle_budget"):
@@ -171,8 +181,14 @@ def train_policy(s: Any, env_id: str, base: dict[str, Any], args: argparse.Names
     from servogym.agents import train
 
     algo = algo_of(s, args.algo)
-    out = args.runs / f"{s.name}-{algo}-s{args.seed}"
-    env_kwargs = {} if s.stored_sets else {"center": base["best_fixed_values"]}
+    out = args.runs / f"{s.name}-{algo}-{args.center}-s{args.seed}"
+    if s.stored_sets:
+        env_kwargs: dict[str, Any] = {}
+    elif args.center == "table":
+        table = [[p, v] for p, v in base["table"]]
+        env_kwargs = {"center_table": table, "residual_scale": args.residual_scale}
+    else:
+        env_kwargs = {"center": base["best_fixed_values"], "residual_scale": args.residual_scale}
     budget_s = args.minutes * 60.0
     cfg_path = out / "config.json"
     spent, trained = 0.0, 0
@@ -184,7 +200,9 @@ def train_policy(s: Any, env_id: str, base: dict[str, Any], args: argparse.Names
                 f"{out} trained around another centre ({cfg.get('env_kwargs')}); the oracle "
                 f"study changed? Move the folder away to train again."
             )
-    if spent >= budget_s - 30 or trained >= args.timesteps:
+    if trained > 0 and (
+        spent >= budget_s - min(30.0, 0.05 * budget_s) or trained >= args.timesteps
+    ):
         print(f"{s.name}: {algo} trained already ({trained} steps, {spent / 60:.1f} min)")
         return out / "model.zip"
     print(f"{s.name}: training {algo} for {(budget_s - spent) / 60:.1f} min more "
@@ -349,6 +367,7 @@ def scenario_row(
     out["command"] = (
         f".venv/bin/python experiments/schedule_policies.py --scenarios {s.name} "
         f"--minutes {args.minutes:g} --seed {args.seed} --episodes {args.episodes} "
+        f"--center {args.center} --residual-scale {args.residual_scale:g} "
         f"--oracle-label {args.oracle_label} --oracle-budget {args.oracle_budget}"
         + (" --skip-train" if args.skip_train else "")
     )

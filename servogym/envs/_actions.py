@@ -319,6 +319,11 @@ class ResidualActions:
         self.center_values = self.unit.to_values(self.center)
         self.scale = float(scale)
 
+    def set_center(self, center: Mapping[str, Any]) -> None:
+        """Act around another set from now on (a gain table's row: ``center_table``)."""
+        self.center = self.unit.from_values(center).astype(np.float64)
+        self.center_values = self.unit.to_values(self.center)
+
     def absolute(self, action: Any) -> np.ndarray:
         """The unit-form action of the underlying :class:`UnitActions` (validated, clipped).
 

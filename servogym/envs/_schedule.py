@@ -192,6 +192,12 @@ class ScheduleEnv(gym.Env):
     | `reward_scale` | 1.0 (`-v1` ids: 0.01) | float (1) | rewards are minus the cost times this |
     | `center` | the scenario's or nominal set | dict (int) | zero action of `"residual"` |
     | `residual_scale` | 0.25 | float (1) | reach of a `"residual"` action (unit form) |
+    | `center_table` | `None` | list of (float, dict) | gain table: centre per move (below) |
+
+    ``center_table`` (with ``action_type="residual"``, single-axis plants): a gain table of
+    ``(operating point, register values)`` rows; before each move the residual's zero action
+    is the set of the point nearest, in log scale, to the coming move's load (what
+    ``servogym.agents.GainTablePolicy`` runs), so a policy refines a gain table.
 
     ## Version History
 
@@ -205,7 +211,8 @@ class ScheduleEnv(gym.Env):
       (docs/envs.md, "Multi-axis machines").
     * v0: Initial version: raw rewards (``reward_scale=1.0``). Added since, as keywords
       whose defaults keep v0's behaviour: ``reward_scale``, the ``"residual"`` and
-      ``"stored"`` actions, ``condition``, ``moves``, ``plant_range``, ``plant_file``.
+      ``"stored"`` actions, ``condition``, ``moves``, ``plant_range``, ``plant_file``,
+      ``center_table``.
       Changed in place, in every version, because the old defaults asked more than the
       motor can give: the part range defaults to the parameter's default sampling range
       (was its legal range: the arm's payload to 2.5 kg, not 5 kg), the other parameters
@@ -238,6 +245,7 @@ class ScheduleEnv(gym.Env):
         reward_scale: float = DEFAULT_REWARD_SCALE,
         center: Mapping[str, Any] | None = None,
         residual_scale: float = DEFAULT_RESIDUAL_SCALE,
+        center_table: Any = None,
     ) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(
@@ -343,10 +351,15 @@ class ScheduleEnv(gym.Env):
             center = default_center(self.chip.name, self.scenario.plant)
         if action_type == "stored":
             action_type = stored_set_actions(self.scenario.chip_model, preset)
+        table = None
+        if center_table is not None:
+            table = self._check_table(center_table, action_type)
+            center = table[0][1]
         self.actions = make_action_map(
             action_type, self.chip, self.scenario.chip_model, params, fixed,
             center=center, residual_scale=residual_scale, axes=self.axes,
         )  # fmt: skip
+        self._table = table
         self.action_space = self.actions.space
         self._space = self.chip.parameter_space(self.scenario.chip_model)
         n_axes = 1
@@ -364,6 +377,29 @@ class ScheduleEnv(gym.Env):
         self._last: tuple[str, Any] | None = None
         self.part_value = self._empty
         self._load_index = self._n_move + n_state if self.condition else None
+
+    def _check_table(self, table: Any, action_type: Any) -> list[tuple[float, dict[str, Any]]]:
+        """``center_table`` validated: ``(operating point, register values)`` pairs."""
+        if action_type != "residual" or self.axes is not None:
+            raise ValueError(
+                f"center_table needs action_type='residual' on a single-axis plant; got "
+                f"action_type={action_type!r} on {self.scenario.plant!r}."
+            )
+        try:
+            rows = [(float(p), dict(v)) for p, v in table]
+        except (TypeError, ValueError):
+            rows = []
+        if not rows or any(not math.isfinite(p) or p <= 0 for p, _ in rows):
+            raise ValueError(
+                "center_table must be a non-empty list of (operating point > 0, register "
+                f"values) pairs of the scheduled parameter; got center_table={table!r:.200}."
+            )
+        return rows
+
+    def _coming_load(self) -> float:
+        """The scheduled parameter during the coming move (what the ``load`` feature shows)."""
+        k = self._k
+        return self.part_value if k % 2 == 1 and k < self.n_moves else self._empty
 
     def observed_load(self, obs: np.ndarray) -> float:
         """The scheduled parameter an observation reports for the coming move (the ``load``
@@ -416,8 +452,7 @@ class ScheduleEnv(gym.Env):
         state += [duration, k / self.n_moves]
         if self.condition:
             lo, hi = math.log(self._empty), math.log(max(self._part[1], self._empty))
-            load = self.part_value if k % 2 == 1 and k < self.n_moves else self._empty
-            t = (math.log(load) - lo) / (hi - lo) if hi > lo else 0.0
+            t = (math.log(self._coming_load()) - lo) / (hi - lo) if hi > lo else 0.0
             state.append(2.0 * t - 1.0)
             if self.axes is not None:
                 state += list(prev)  # the configuration at the move's start ...
@@ -468,6 +503,10 @@ class ScheduleEnv(gym.Env):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._k >= self.n_moves:
             raise RuntimeError("the episode has ended; call reset() before step()")
+        if self._table is not None:  # act around the gain table's set for this load
+            load = math.log(self._coming_load())
+            row = min(self._table, key=lambda r: abs(math.log(r[0]) - load))
+            self.actions.set_center(row[1])
         values = self.actions.to_values(action)
         params = self.actions.to_params(action)
         k = self._k

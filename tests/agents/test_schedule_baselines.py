@@ -147,3 +147,32 @@ def test_hyperparameters_come_from_the_zoo_files(study):
     assert hp["policy_kwargs"] == {"net_arch": [128, 128]}
     assert "n_timesteps" not in hp and "policy" not in hp
     assert study.hyperparameters("ppo", "servogym/Schedule-Parker6K-StoredSets-v1")["n_steps"]
+
+
+def test_a_zero_residual_around_a_center_table_runs_the_gain_table():
+    table = [(3e-5, {"kp": 34, "kd": 107, "ki": 11, "kaff": 252}),
+             (9e-4, {"kp": 60, "kd": 300, "ki": 11, "kaff": 2000})]  # fmt: skip
+    unit = gym.make(ROTARY, action_type="unit", n_moves=4)
+    around = gym.make(ROTARY, center_table=table, residual_scale=0.5, n_moves=4)
+    zero = ConstantPolicy(np.zeros(around.action_space.shape, dtype=np.float32))
+    seeds = [2, 5]
+    want = run_episodes(unit, GainTablePolicy(unit, table), seeds)
+    got = run_episodes(around, zero, seeds)
+    assert [o.episode_return for o in got] == [o.episode_return for o in want]
+    # and the sets differ between the empty and the loaded moves
+    around.reset(seed=2)
+    kps = [around.step(zero(None))[4]["params"]["kp"] for _ in range(2)]
+    assert kps == [34, 60]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"center_table": [], "action_type": "residual"}, "non-empty list"),
+        ({"center_table": [(-1.0, {"kp": 3})], "action_type": "residual"}, "point > 0"),
+        ({"center_table": [(1e-4, {"kp": 3})], "action_type": "unit"}, "action_type='residual'"),
+    ],
+)
+def test_center_table_refuses_what_it_cannot_use(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make(ROTARY, **kwargs)
