@@ -254,6 +254,11 @@ class ScheduleEnv(gym.Env):
             )
         if isinstance(n_moves, bool) or not isinstance(n_moves, int) or n_moves < 1:
             raise ValueError(f"n_moves must be an integer >= 1; got n_moves={n_moves!r}.")
+        if center is not None and center_table is not None:
+            raise ValueError(
+                "give center (one set) or center_table (a gain table), not both; got "
+                f"center={dict(center)!r:.80} and a center_table."
+            )
         self.render_mode = render_mode
         self.n_moves = n_moves
         self.reward_scale = check_reward_scale(reward_scale)

@@ -171,6 +171,7 @@ def test_a_zero_residual_around_a_center_table_runs_the_gain_table():
         ({"center_table": [], "action_type": "residual"}, "non-empty list"),
         ({"center_table": [(-1.0, {"kp": 3})], "action_type": "residual"}, "point > 0"),
         ({"center_table": [(1e-4, {"kp": 3})], "action_type": "unit"}, "action_type='residual'"),
+        ({"center_table": [(1e-4, {"kp": 3})], "center": {"kp": 4}}, "not both"),
     ],
 )
 def test_center_table_refuses_what_it_cannot_use(kwargs, match):
