@@ -368,10 +368,21 @@ def scenario_row(
         f".venv/bin/python experiments/schedule_policies.py --scenarios {s.name} "
         f"--minutes {args.minutes:g} --seed {args.seed} --episodes {args.episodes} "
         f"--center {args.center} --residual-scale {args.residual_scale:g} "
-        f"--oracle-label {args.oracle_label} --oracle-budget {args.oracle_budget}"
+        + (f"--algo {args.algo} " if args.algo else "")
+        + f"--oracle-label {args.oracle_label} --oracle-budget {args.oracle_budget}"
         + (" --skip-train" if args.skip_train else "")
     )
     return out
+
+
+def _run_tag(run: dict[str, Any]) -> str:
+    """A trained policy's part of its episode blocks' key: run folder and steps trained."""
+    return f"@{Path(run['folder']).name}@{run['trained_timesteps']}"
+
+
+def _row_key(row: dict[str, Any]) -> tuple[str, str | None]:
+    """A summary row's identity: the scenario and the policy's run folder (None: baselines)."""
+    return row["scenario"], (row.get("policy_run") or {}).get("folder")
 
 
 def _policies(run: dict[str, Any] | None, base: dict[str, Any]) -> list[str]:
@@ -419,7 +430,7 @@ def main(argv: list[str] | None = None) -> None:
         jobs = []
         for name in _policies(run, base):
             for integ in args.integrations.split(","):
-                tag = f"{run['trained_timesteps']}" if name == "policy" else ""
+                tag = _run_tag(run) if name == "policy" else ""
                 key = (f"{s.name}|{name}{tag}|{integ}|{args.eval_seed}|{args.episodes}|"
                        f"{args.oracle_label}|{args.oracle_budget}")  # fmt: skip
                 if key in done:
@@ -443,7 +454,7 @@ def main(argv: list[str] | None = None) -> None:
         blocks = {}
         for name in _policies(run, base):
             for integ in args.integrations.split(","):
-                tag = f"{run['trained_timesteps']}" if name == "policy" else ""
+                tag = _run_tag(run) if name == "policy" else ""
                 key = (f"{s.name}|{name}{tag}|{integ}|{args.eval_seed}|{args.episodes}|"
                        f"{args.oracle_label}|{args.oracle_budget}")  # fmt: skip
                 blocks[(name, integ)] = done[key]
@@ -452,9 +463,9 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps({k: row[k] for k in row if "mean_cost" in k or k.startswith(
             "policy_over") or k == "goal_met"}, indent=1), flush=True)  # fmt: skip
     old = json.loads(args.out.read_text()) if args.out.exists() else {"scenarios": []}
-    mine = {r["scenario"] for r in rows}
-    keep = [o for o in old.get("scenarios", []) if o["scenario"] not in mine]
-    doc = {"scenarios": sorted(keep + rows, key=lambda r: r["scenario"])}
+    mine = {_row_key(r) for r in rows}
+    keep = [o for o in old.get("scenarios", []) if _row_key(o) not in mine]
+    doc = {"scenarios": sorted(keep + rows, key=lambda r: (r["scenario"], str(_row_key(r)[1])))}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".tmp")
     tmp.write_text(json.dumps(doc, indent=1) + "\n")

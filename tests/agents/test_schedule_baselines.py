@@ -146,7 +146,8 @@ def test_hyperparameters_come_from_the_zoo_files(study):
     hp = study.hyperparameters("sac", ROTARY)
     assert hp["policy_kwargs"] == {"net_arch": [128, 128]}
     assert "n_timesteps" not in hp and "policy" not in hp
-    assert study.hyperparameters("ppo", "servogym/Schedule-Parker6K-StoredSets-v1")["n_steps"]
+    ppo = study.hyperparameters("ppo", "servogym/Schedule-Parker6K-StoredSets-v1")
+    assert ppo["n_steps"] == 256 and ppo["policy_kwargs"]["log_std_init"] == -2.0
 
 
 def test_a_zero_residual_around_a_center_table_runs_the_gain_table():
