@@ -375,6 +375,15 @@ def scenario_row(
     return out
 
 
+def _shown(path: Path) -> str:
+    """A run folder as the summary names it: from ``experiments/`` on when it is in one
+    (wherever the checkout is), else as given."""
+    parts = path.resolve().parts
+    if "experiments" in parts:
+        return "/".join(parts[len(parts) - parts[::-1].index("experiments") - 1 :])
+    return str(path)
+
+
 def _run_tag(run: dict[str, Any]) -> str:
     """A trained policy's part of its episode blocks' key: run folder and steps trained."""
     return f"@{Path(run['folder']).name}@{run['trained_timesteps']}"
@@ -422,8 +431,7 @@ def main(argv: list[str] | None = None) -> None:
         if not args.skip_train:
             model = str(train_policy(s, env_id, base, args))
             cfg = json.loads((Path(model).parent / "config.json").read_text())
-            run = {"algo": cfg["algo"], "folder": str(Path(model).parent.relative_to(ROOT))
-                   if Path(model).is_relative_to(ROOT) else str(Path(model).parent),
+            run = {"algo": cfg["algo"], "folder": _shown(Path(model).parent),
                    "trained_timesteps": cfg["trained_timesteps"],
                    "wall_time_s": cfg.get("wall_time_s"), "env_kwargs": cfg["env_kwargs"],
                    "algo_kwargs": cfg["algo_kwargs"]}  # fmt: skip
