@@ -389,6 +389,14 @@ def _run_tag(run: dict[str, Any]) -> str:
     return f"@{Path(run['folder']).name}@{run['trained_timesteps']}"
 
 
+def _block_key(scenario: str, name: str, integ: str, run: dict[str, Any] | None,
+               args: argparse.Namespace) -> str:  # fmt: skip
+    """The key of one policy's block of episodes in ``--episodes-out``."""
+    tag = _run_tag(run) if name == "policy" else ""
+    return (f"{scenario}|{name}{tag}|{integ}|{args.eval_seed}|{args.episodes}|"
+            f"{args.oracle_label}|{args.oracle_budget}")  # fmt: skip
+
+
 def _row_key(row: dict[str, Any]) -> tuple[str, str | None]:
     """A summary row's identity: the scenario and the policy's run folder (None: baselines)."""
     return row["scenario"], (row.get("policy_run") or {}).get("folder")
@@ -438,9 +446,7 @@ def main(argv: list[str] | None = None) -> None:
         jobs = []
         for name in _policies(run, base):
             for integ in args.integrations.split(","):
-                tag = _run_tag(run) if name == "policy" else ""
-                key = (f"{s.name}|{name}{tag}|{integ}|{args.eval_seed}|{args.episodes}|"
-                       f"{args.oracle_label}|{args.oracle_budget}")  # fmt: skip
+                key = _block_key(s.name, name, integ, run, args)
                 if key in done:
                     continue
                 jobs.append({"scenario": s.name, "env_id": env_id, "policy": name,
@@ -462,10 +468,7 @@ def main(argv: list[str] | None = None) -> None:
         blocks = {}
         for name in _policies(run, base):
             for integ in args.integrations.split(","):
-                tag = _run_tag(run) if name == "policy" else ""
-                key = (f"{s.name}|{name}{tag}|{integ}|{args.eval_seed}|{args.episodes}|"
-                       f"{args.oracle_label}|{args.oracle_budget}")  # fmt: skip
-                blocks[(name, integ)] = done[key]
+                blocks[(name, integ)] = done[_block_key(s.name, name, integ, run, args)]
         row = scenario_row(s, env_id, base, blocks, run, args)
         rows.append(row)
         print(json.dumps({k: row[k] for k in row if "mean_cost" in k or k.startswith(
