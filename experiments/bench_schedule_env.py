@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import statistics
 import time
 
@@ -70,7 +71,8 @@ def main() -> None:
             raise SystemExit(f"--{name} must be >= 1; got --{name} {getattr(args, name)}.")
     from servogym.envs import SCENARIOS
 
-    preset = any(args.env.endswith(f"-{n}-v0") for n in SCENARIOS)
+    preset = re.search(r"-(\w+)-v\d+$", args.env)
+    preset = preset is not None and preset.group(1) in SCENARIOS
     kwargs = {} if preset else {"action_type": "residual"}
     single = [_single(args.env, kwargs, args.steps) for _ in range(args.repeats)]
     vector = [_vector(args.env, kwargs, args.steps // 2 or 1) for _ in range(args.repeats)]
