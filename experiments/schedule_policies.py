@@ -102,9 +102,14 @@ def _parse(argv: list[str] | None = None) -> argparse.Namespace:
 
 def baselines(s: Any, oracle_path: Path, label: str, budget: int) -> dict[str, Any]:
     """The oracle study's sets of scenario ``s``: best fixed, robust, the gain table, the
-    oracle's mean cost over the points. Raises ``SystemExit`` naming the command when the
-    study is not there."""
-    sets: dict[str, dict[str, Any]] = {}
+    oracle's mean cost over the points. The best fixed set is ``schedule_oracle.summarize``'s
+    (only sets that passed the check); the gain table's rows are the points' sets that passed
+    it (all, flagged, when none did). Raises ``SystemExit`` naming the command when the study
+    is not there."""
+    sys.path.insert(0, str(HERE))
+    from schedule_oracle import summarize
+
+    records = []
     if oracle_path.exists():
         for line in oracle_path.read_text().splitlines():
             try:
@@ -113,41 +118,39 @@ def baselines(s: Any, oracle_path: Path, label: str, budget: int) -> dict[str, A
                 continue
             if (rec.get("kind") == "set" and rec["scenario"] == s.name
                     and rec["label"] == label and rec["budget"] == budget):  # fmt: skip
-                sets.setdefault(str(rec["points"]), {})[str(rec["point"])] = rec
-    full = {k: v for k, v in sets.items() if all(str(i) in v for i in range(int(k)))
-            and "robust" in v}  # fmt: skip
-    if not full:
+                records.append(rec)
+    by_k: dict[int, dict[str, dict[str, Any]]] = {}
+    for rec in records:
+        by_k.setdefault(int(rec["points"]), {})[str(rec["point"])] = rec
+    for n in sorted(by_k, reverse=True):  # the largest finished study
+        by = by_k[n]
+        if all(str(i) in by for i in range(n)):
+            points = [float(by[str(i)]["value"]) for i in range(n)]
+            summary = summarize(records, s, points, label, budget)
+            if summary is not None:
+                break
+    else:
         raise SystemExit(
             f"no finished oracle study of {s.name} (label {label!r}, budget {budget}) in "
             f"{oracle_path}; run: .venv/bin/python experiments/schedule_oracle.py --scenarios "
             f"{s.name} --budget {budget} --label {label} --tuner safe"
         )
-    k = max(full, key=int)
-    by = full[k]
-    n = int(k)
-    points = [float(by[str(i)]["value"]) for i in range(n)]
-    names = [str(i) for i in range(n)] + ["robust"]
-    means = {m: float(np.mean(by[m]["cross"])) for m in names}
-    # An engineer stores only sets that passed the check: the best fixed set and the gain
-    # table's rows are taken from those (all sets, flagged, when none passed).
-    passed = [m for m in names if by[m]["check_passed"]]
-    best = min(passed or names, key=means.get)
+    best = summary["best_fixed"]
     rows = [i for i in range(n) if by[str(i)]["check_passed"]] or list(range(n))
-    oracle = [by[str(i)]["cross"][i] for i in range(n)]
     return {
         "points": points,
         "table": [(points[i], by[str(i)]["values"]) for i in rows],
         "table_points": [points[i] for i in rows],
         "table_checked": all(by[str(i)]["check_passed"] for i in rows),
-        "best_fixed_checked": bool(by[best]["check_passed"]),
+        "best_fixed_checked": summary["best_fixed_checked"],
         "best_fixed": best,
         "best_fixed_values": by[best]["values"],
         "robust_values": by["robust"]["values"],
-        "oracle_costs": oracle,
-        "oracle_mean_cost": float(np.mean(oracle)),
-        "best_fixed_point_mean_cost": means[best],
-        "oracle_gap": means[best] / float(np.mean(oracle)),
-        "checks_passed": {m: bool(by[m]["check_passed"]) for m in names},
+        "oracle_costs": summary["oracle_costs"],
+        "oracle_mean_cost": summary["oracle_mean_cost"],
+        "best_fixed_point_mean_cost": summary["best_fixed_mean_cost"],
+        "oracle_gap": summary["oracle_gap"],
+        "checks_passed": {m: bool(v) for m, v in summary["checks_passed"].items()},
     }
 
 

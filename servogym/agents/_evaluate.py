@@ -55,22 +55,15 @@ class GainTablePolicy:
     """
 
     def __init__(self, env: Any, table: Iterable[tuple[float, Mapping[str, int]]]) -> None:
-        import math
+        from servogym.envs import GainTable
 
         self.env = env.unwrapped
-        rows = [(float(p), dict(v)) for p, v in table]
-        if not rows or any(not math.isfinite(p) or p <= 0 for p, _ in rows):
-            raise ValueError(
-                f"table must hold at least one (point, values) pair with a point > 0; got "
-                f"points {[p for p, _ in rows]}."
-            )
-        self.points = np.log([p for p, _ in rows])
-        self.actions = [self.env.actions.from_values(v) for _, v in rows]
+        self.table = GainTable(table)
+        self.actions = [self.env.actions.from_values(v) for _, v in self.table.rows]
         self.env.observed_load(np.zeros(self.env.observation_space.shape))  # condition=True?
 
     def __call__(self, obs: np.ndarray) -> Any:
-        load = np.log(self.env.observed_load(obs))
-        return self.actions[int(np.argmin(np.abs(self.points - load)))].copy()
+        return self.actions[self.table.index(self.env.observed_load(obs))].copy()
 
 
 def reference_env(env: Any) -> Any:

@@ -45,6 +45,7 @@ from servogym.envs._schedule import (
     CONDITION_FEATURES,
     CYCLES,
     STATE_FEATURES,
+    GainTable,
     PickAndPlace,
     ScheduleEnv,
 )
@@ -148,6 +149,7 @@ __all__ = [
     "VERSION",
     "VERSIONS",
     "ActionMap",
+    "GainTable",
     "PickAndPlace",
     "RawActions",
     "ResidualActions",

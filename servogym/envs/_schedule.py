@@ -100,6 +100,40 @@ CONDITION_FEATURES: tuple[tuple[str, str, str], ...] = (
 the state features, before the last action."""
 
 
+class GainTable:
+    """An industrial gain table: register sets tuned at K operating points of the scheduled
+    parameter. :meth:`row` is the row for a load: the point nearest in log scale, the first
+    on a tie. What :class:`servogym.agents.GainTablePolicy` chooses from and what
+    ``center_table`` centres the residual action on.
+
+    Args:
+        table: ``(operating point, register values)`` pairs, K >= 1, points finite and > 0.
+        name: The argument's name in the error message.
+    """
+
+    def __init__(self, table: Any, name: str = "table") -> None:
+        try:
+            rows = [(float(p), dict(v)) for p, v in table]
+        except (TypeError, ValueError):
+            rows = []
+        if not rows or any(not math.isfinite(p) or p <= 0 for p, _ in rows):
+            raise ValueError(
+                f"{name} must be a non-empty list of (operating point > 0, register values) "
+                f"pairs of the scheduled parameter; got {name}={table!r:.200}."
+            )
+        self.rows: list[tuple[float, dict[str, Any]]] = rows
+        self._logs = [math.log(p) for p, _ in rows]
+
+    def index(self, load: float) -> int:
+        """The row for ``load`` (> 0): the point nearest in log scale, the first on a tie."""
+        x = math.log(load)
+        return min(range(len(self._logs)), key=lambda i: abs(self._logs[i] - x))
+
+    def row(self, load: float) -> tuple[float, dict[str, Any]]:
+        """``(point, register values)`` of :meth:`index`."""
+        return self.rows[self.index(load)]
+
+
 def cycle_for(plant: str) -> PickAndPlace:
     """The pick-and-place cycle of a plant family (:data:`CYCLES`, a machine's
     :data:`~servogym.envs._machine.MACHINE_CYCLES`, or its fallback)."""
@@ -359,7 +393,7 @@ class ScheduleEnv(gym.Env):
         table = None
         if center_table is not None:
             table = self._check_table(center_table, action_type)
-            center = table[0][1]
+            center = table.rows[0][1]
         self.actions = make_action_map(
             action_type, self.chip, self.scenario.chip_model, params, fixed,
             center=center, residual_scale=residual_scale, axes=self.axes,
@@ -383,23 +417,14 @@ class ScheduleEnv(gym.Env):
         self.part_value = self._empty
         self._load_index = self._n_move + n_state if self.condition else None
 
-    def _check_table(self, table: Any, action_type: Any) -> list[tuple[float, dict[str, Any]]]:
-        """``center_table`` validated: ``(operating point, register values)`` pairs."""
+    def _check_table(self, table: Any, action_type: Any) -> GainTable:
+        """``center_table`` validated: the gain table the residual action centres on."""
         if action_type != "residual" or self.axes is not None:
             raise ValueError(
                 f"center_table needs action_type='residual' on a single-axis plant; got "
                 f"action_type={action_type!r} on {self.scenario.plant!r}."
             )
-        try:
-            rows = [(float(p), dict(v)) for p, v in table]
-        except (TypeError, ValueError):
-            rows = []
-        if not rows or any(not math.isfinite(p) or p <= 0 for p, _ in rows):
-            raise ValueError(
-                "center_table must be a non-empty list of (operating point > 0, register "
-                f"values) pairs of the scheduled parameter; got center_table={table!r:.200}."
-            )
-        return rows
+        return GainTable(table, name="center_table")
 
     def _coming_load(self) -> float:
         """The scheduled parameter during the coming move (what the ``load`` feature shows)."""
@@ -509,9 +534,7 @@ class ScheduleEnv(gym.Env):
         if self._k >= self.n_moves:
             raise RuntimeError("the episode has ended; call reset() before step()")
         if self._table is not None:  # act around the gain table's set for this load
-            load = math.log(self._coming_load())
-            row = min(self._table, key=lambda r: abs(math.log(r[0]) - load))
-            self.actions.set_center(row[1])
+            self.actions.set_center(self._table.row(self._coming_load())[1])
         values = self.actions.to_values(action)
         params = self.actions.to_params(action)
         k = self._k

@@ -178,3 +178,14 @@ def test_a_zero_residual_around_a_center_table_runs_the_gain_table():
 def test_center_table_refuses_what_it_cannot_use(kwargs, match):
     with pytest.raises(ValueError, match=match):
         gym.make(ROTARY, **kwargs)
+
+
+def test_gain_table_takes_the_nearest_point_in_log_scale_and_the_first_on_a_tie():
+    from servogym.envs import GainTable
+
+    t = GainTable([(1e-4, {"kp": 1}), (1e-2, {"kp": 2}), (1e-2, {"kp": 3})])
+    assert t.row(9e-4)[1] == {"kp": 1}  # log distance 0.95 decades against 1.05
+    assert t.row(1.1e-3)[1] == {"kp": 2}  # the first of the two rows at 1e-2
+    assert t.index(1e-3) == 0  # equidistant in log scale: the first
+    with pytest.raises(ValueError, match=r"center_table must .* point > 0.*; got center_table="):
+        GainTable([(1e-4, {"kp": 1}), (0.0, {"kp": 2})], name="center_table")
