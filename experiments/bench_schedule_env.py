@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import statistics
 import time
 
@@ -69,10 +68,7 @@ def main() -> None:
     for name in ("steps", "repeats"):
         if getattr(args, name) < 1:
             raise SystemExit(f"--{name} must be >= 1; got --{name} {getattr(args, name)}.")
-    from servogym.envs import SCENARIOS
-
-    preset = re.search(r"-(\w+)-v\d+$", args.env)
-    preset = preset is not None and preset.group(1) in SCENARIOS
+    preset = "scenario_name" in gym.spec(args.env).kwargs  # a scenario id, any version
     kwargs = {} if preset else {"action_type": "residual"}
     single = [_single(args.env, kwargs, args.steps) for _ in range(args.repeats)]
     vector = [_vector(args.env, kwargs, args.steps // 2 or 1) for _ in range(args.repeats)]
