@@ -4,7 +4,8 @@
     nice -n 10 .venv/bin/python experiments/schedule_oracle.py --budget 30 --robust 4 \\
         --episodes 10 --label smoke                                             # a smoke run
 
-For each scenario of ``servogym.envs.SCENARIOS`` (``--scenarios`` picks some):
+For each scenario of ``servogym.envs.SCENARIOS`` and of :data:`MACHINE_SCENARIOS` (the
+two-link arm; ``--scenarios`` picks some):
 
 1. K operating points (``--points``, default 4): the scheduled parameter log-spaced from the
    empty value to the part range's high end, the other parameters nominal, the scenario's
@@ -23,6 +24,12 @@ For each scenario of ``servogym.envs.SCENARIOS`` (``--scenarios`` picks some):
    condition, in log scale: what a controller with stored gain sets does; of the points
    whose set passed the check). ``experiments/schedule_policies.py`` runs the study's
    held-out episodes, on both integrations, with the trained policies.
+
+On a multi-axis machine (``TwoLinkArm``) a set is every axis's registers (``kp.1``, ``kp.2``),
+tuned by ``servogym tune``'s machine path on the plant's default tasks (coordinated moves and
+contours) from the id's safe centre (:data:`servogym.envs._machine.MACHINE_CENTERS`: the
+model-based design start has no machine model), checked by the multi-axis check, and
+cross-evaluated on those tasks (``MachineEvaluator``).
 
 The oracle gap is ``best fixed mean cost / oracle mean cost`` over the points: the best fixed
 set is the candidate (robust or any point's set) that passed the check with the lowest mean
@@ -108,9 +115,63 @@ def _append(path: Path, rec: dict[str, Any]) -> None:
         f.write(json.dumps(rec) + "\n")
 
 
+MACHINE_SCENARIOS: tuple[tuple[str, str], ...] = (("TwoLinkArm", "two-link-arm"),)
+"""Scenario name -> multi-axis plant: the machines' Schedule ids
+(``servogym/Schedule-PMD-TwoLinkArm-v1``), studied on the PMD family's id."""
+
+
+def get_any_scenario(name: str) -> Any:
+    """A scenario of ``servogym.envs.SCENARIOS`` or of :data:`MACHINE_SCENARIOS` (a
+    ``ScheduleScenario`` built from the machine's Schedule id: its chip model, its cycle's
+    parameter, empty value and part range, the id's box of the other drawn parameters)."""
+    from servogym.envs._scenarios import SCENARIOS, get_scenario
+
+    machines = dict(MACHINE_SCENARIOS)
+    if name in SCENARIOS or name not in machines:
+        return get_scenario(name)  # raises naming the scenarios for an unknown name
+    import gymnasium as gym
+
+    import servogym  # noqa: F401
+    from servogym.envs._machine import MACHINE_CYCLES
+    from servogym.envs._scenarios import ScheduleScenario
+
+    plant = machines[name]
+    cycle = MACHINE_CYCLES[plant]
+    eid = f"servogym/Schedule-PMD-{name}-v1"
+    env = gym.make(eid)
+    u = env.unwrapped
+    box = {k: tuple(v) for k, v in u.scenario.box().items() if k != cycle.param}
+    env.close()
+    return ScheduleScenario(name=name, family="pmd", chip_model=u.scenario.chip_model,
+                            plant=plant, param=cycle.param, empty=cycle.empty,
+                            part=tuple(cycle.part), plant_range=box)  # fmt: skip
+
+
+def _is_machine(s) -> bool:
+    from servogym.envs._machine import is_machine
+
+    return is_machine(s.plant)
+
+
+def machine_center(s) -> dict[str, int]:
+    """The machine id's safe centre, every axis's registers (``kp.1``, ``kp.2``)."""
+    from servogym.envs._machine import MACHINE_CENTERS, axis_register
+
+    sets = MACHINE_CENTERS[(s.family, s.plant)]
+    return {axis_register(k, n): int(v) for k, d in enumerate(sets, 1) for n, v in d.items()}
+
+
 def _config(s, args, point: float | None):
     from servogym.autotune._job import TuneConfig
 
+    if _is_machine(s):
+        values = dict(s.plant_values) if point is None else {**s.plant_values, s.param: point}
+        ranges = {s.param: (s.empty, s.part[1]), **dict(s.plant_range)}
+        return TuneConfig(chip=s.chip_model, plant=s.plant, out=Path("unused"),
+                          budget=args.budget, tuner=args.tuner, plant_params=values,
+                          plant_ranges=ranges if point is None else {}, seed=args.seed,
+                          workers=args.workers, robust=args.robust if point is None else 1,
+                          check_candidates=args.check_candidates)  # fmt: skip
     search = None
     if s.family == "parker6k":
         from servogym.chips.parker6k import GAIN_FIELDS
@@ -156,9 +217,12 @@ def tune_set(s, args, point: float | None) -> dict[str, Any]:
             min_phase_margin_deg=config.min_phase_margin_deg + extra_deg,
         )
         problem = tune.problem()
-        design = design_start(problem, tune)
+        if _is_machine(s):  # no machine model for the design: the id's safe centre
+            start = machine_center(s)
+        else:
+            start = design_start(problem, tune).get("values")
         result = run_study(problem, tune.tuner, tune.budget, storage=None,
-                           n_workers=tune.workers, warm_start=design.get("values"))  # fmt: skip
+                           n_workers=tune.workers, warm_start=start)  # fmt: skip
         result, report = check_candidates(result, config)  # the standard check
         tried.append([extra_db, extra_deg, bool(report.passed)])
         if report.passed:
@@ -178,6 +242,17 @@ def cross_costs(s, values: dict[str, int], points: list[float]) -> list[float]:
     """The set's cost at every operating point (nominal otherwise; the RK4 loop)."""
     from servogym.sim import Evaluator, Scenario
 
+    if _is_machine(s):  # the machine's tasks, as tuned
+        from servogym.autotune._machine import MachineEvaluator
+
+        costs = []
+        for v in points:
+            problem = _config(s, argparse.Namespace(
+                budget=1, tuner="random", seed=0, workers=1, robust=1, check_candidates=1), v
+            ).problem()  # fmt: skip
+            ev = MachineEvaluator(problem.scenario)
+            costs.append(float(ev.evaluate(problem.space.make_params(values)).cost))
+        return costs
     costs = []
     for v in points:
         sc = Scenario(s.chip_model, s.plant, {**dict(s.plant_values), s.param: v},
@@ -271,10 +346,10 @@ def summarize(records: list[dict[str, Any]], s, points: list[float], label: str,
 
 def main() -> None:
     args = _parse()
-    from servogym.envs._scenarios import SCENARIOS, get_scenario
+    from servogym.envs._scenarios import SCENARIOS
 
     names = args.scenarios.split(",") if args.scenarios else list(SCENARIOS)
-    scenarios = [get_scenario(n.strip()) for n in names]
+    scenarios = [get_any_scenario(n.strip()) for n in names]
     done = _done(args.out)
     summary_path = args.out.with_name(args.out.stem + "_summary.json")
     summaries = []

@@ -4,7 +4,9 @@
         --budget 150 --robust 4 --tuner safe --label full          # the baselines first
     .venv/bin/python experiments/schedule_policies.py --scenarios RotaryInertia --minutes 60
 
-For each scenario of ``servogym.envs.SCENARIOS`` (``--scenarios`` picks some):
+For each scenario of ``servogym.envs.SCENARIOS`` (``--scenarios`` picks some; ``TwoLinkArm``,
+the machine scenario of ``schedule_oracle.MACHINE_SCENARIOS``, by name with
+``--skip-train``: ``center_table`` is single-axis only):
 
 1. **Baselines** from the oracle study (``experiments/schedule_oracle.py``, its ``--label``
    and ``--budget``), each from the sets that passed ``servogym check`` (an engineer stores
@@ -188,6 +190,13 @@ def train_policy(s: Any, env_id: str, base: dict[str, Any], args: argparse.Names
     if s.stored_sets:
         env_kwargs: dict[str, Any] = {}
     elif args.center == "table":
+        from servogym.envs._machine import is_machine
+
+        if is_machine(s.plant):
+            raise SystemExit(
+                f"{s.name}: --center table needs a single-axis plant (center_table); give "
+                f"--center best-fixed, or --skip-train for the baselines."
+            )
         table = [[p, v] for p, v in base["table"]]
         env_kwargs = {"center_table": table, "residual_scale": args.residual_scale}
     else:
@@ -426,15 +435,16 @@ def _done(path: Path) -> dict[str, dict[str, Any]]:
 
 def main(argv: list[str] | None = None) -> None:
     args = _parse(argv)
-    from servogym.envs._scenarios import SCENARIOS, get_scenario
+    from servogym.envs._scenarios import SCENARIOS
 
-    sys.path.insert(0, str(HERE))
-    from schedule_oracle import _scenario_id
+    if str(HERE) not in sys.path:
+        sys.path.insert(0, str(HERE))
+    from schedule_oracle import _scenario_id, get_any_scenario
 
     names = args.scenarios.split(",") if args.scenarios else list(SCENARIOS)
     done = _done(args.episodes_out)
     rows = []
-    for s in (get_scenario(n.strip()) for n in names):
+    for s in (get_any_scenario(n.strip()) for n in names):
         env_id = _scenario_id(s)
         base = baselines(s, args.oracle, args.oracle_label, args.oracle_budget)
         run = None

@@ -189,3 +189,57 @@ def test_gain_table_takes_the_nearest_point_in_log_scale_and_the_first_on_a_tie(
     assert t.index(1e-3) == 0  # equidistant in log scale: the first
     with pytest.raises(ValueError, match=r"center_table must .* point > 0.*; got center_table="):
         GainTable([(1e-4, {"kp": 1}), (0.0, {"kp": 2})], name="center_table")
+
+
+@pytest.fixture(scope="module")
+def oracle_script():
+    path = _SCRIPT.parent / "schedule_oracle.py"
+    spec = importlib.util.spec_from_file_location("schedule_oracle", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_two_link_arm_scenario_is_its_schedule_ids_cycle(oracle_script):
+    """The oracle's machine scenario: the PMD id's chip, cycle and box; its centre is every
+    axis's registers, which the id's chip accepts; its sets tune on the machine path."""
+    from servogym.envs._machine import MACHINE_CYCLES
+
+    s = oracle_script.get_any_scenario("TwoLinkArm")
+    cycle = MACHINE_CYCLES["two-link-arm"]
+    assert oracle_script._scenario_id(s) == "servogym/Schedule-PMD-TwoLinkArm-v1"
+    assert (s.param, s.empty, s.part) == (cycle.param, cycle.empty, tuple(cycle.part))
+    assert s.param not in s.plant_range and "shoulder_coulomb_friction_nm" in s.plant_range
+    points = s.operating_points(3)
+    assert points[0] == cycle.empty and points[-1] == cycle.part[1]
+    center = oracle_script.machine_center(s)
+    assert {"kp.1", "kp.2"} <= set(center)
+    env = gym.make(oracle_script._scenario_id(s), action_type="unit")
+    params = env.unwrapped.scenario.params(center)
+    assert params[0].kp == center["kp.1"] and params[1].kp == center["kp.2"]
+    args = type("A", (), dict(budget=5, tuner="safe", seed=0, workers=1, robust=3,
+                              check_candidates=1))()  # fmt: skip
+    point = oracle_script._config(s, args, points[1])
+    assert point.plant == "two-link-arm" and point.robust == 1
+    assert dict(point.plant_params) == {"payload_kg": points[1]}
+    robust = oracle_script._config(s, args, None)
+    assert robust.robust == 3 and robust.plant_ranges["payload_kg"] == (cycle.empty, 2.0)
+    assert type(robust.problem()).__name__ == "MachineProblem"
+
+
+def test_gain_table_runs_on_a_machine_action():
+    """GainTablePolicy on the two-link arm: the payload row on loaded moves, the empty row on
+    empty ones (every axis's registers in one row)."""
+    from servogym.envs._machine import MACHINE_CENTERS, axis_register
+
+    env = gym.make("servogym/Schedule-PMD-TwoLinkArm-v1", action_type="unit", n_moves=4)
+    sets = MACHINE_CENTERS[("pmd", "two-link-arm")]
+    light = {axis_register(k, n): v for k, d in enumerate(sets, 1) for n, v in d.items()}
+    heavy = {**light, "kp.1": light["kp.1"] + 100}
+    policy = GainTablePolicy(env, [(0.05, light), (1.0, heavy)])
+    obs, _ = env.reset(seed=3)
+    for k in range(4):
+        obs, _, _, _, info = env.step(policy(obs))
+        want = light if k % 2 == 0 else heavy
+        assert int(info["params"]["kp.1"]) == want["kp.1"]
+        assert (info["payload_kg"] > 0.05) == (k % 2 == 1)
