@@ -85,6 +85,10 @@ def _parse(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--oracle", type=Path, default=RESULTS / "oracle.jsonl")
     ap.add_argument("--episodes-out", type=Path, default=RESULTS / "episodes.jsonl")
     ap.add_argument("--out", type=Path, default=RESULTS / "summary.json")
+    ap.add_argument("--docs", type=Path, default=ROOT / "docs" / "envs.md",
+                    help="the page whose table of the summary is written again")  # fmt: skip
+    ap.add_argument("--table-only", action="store_true",
+                    help="write --out's table into --docs, nothing else")  # fmt: skip
     args = ap.parse_args(argv)
     if not 0 < args.residual_scale <= 2:
         raise SystemExit(f"--residual-scale must be in (0, 2]; got {args.residual_scale}.")
@@ -433,8 +437,75 @@ def _done(path: Path) -> dict[str, dict[str, Any]]:
     return out
 
 
+TABLE_MARKERS = (
+    "<!-- schedule policies table: experiments/results/schedule/summary.json -->",
+    "<!-- end of schedule policies table -->",
+)
+"""The lines around the table of docs/envs.md that :func:`table` writes."""
+
+
+def _fmt(mean: float | None, ci: list[float] | None = None) -> str:
+    if mean is None:
+        return "-"
+    return f"{mean:.3g}" + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "")
+
+
+def table(doc: dict[str, Any]) -> str:
+    """The markdown table of docs/envs.md ("Policies against the baselines") from a summary
+    (``--out``): per row, mean costs per move on the headline integration with their
+    bootstrap intervals; a row of baselines only has no policy."""
+    lines = [
+        "| Env id | Policy (training) | Policy | Best fixed | Gain table | Oracle (points) | "
+        "Policy / best fixed | Policy / gain table | Goal |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in doc["scenarios"]:
+        per = r["by_integration"][r["integration"]]
+        run = r.get("policy_run")
+        if run is None:
+            training = "none (baselines)"
+        else:
+            kw = run.get("env_kwargs") or {}
+            how = ("around the gain table" if "center_table" in kw
+                   else "around the best fixed set" if "center" in kw
+                   else "choosing a stored set")  # fmt: skip
+            minutes = (run.get("wall_time_s") or 0.0) / 60.0
+            training = (
+                f"{run['algo'].upper()} {how}, {run['trained_timesteps']} steps in "
+                f"{minutes:.0f} min"
+            )
+        goal = "-" if "goal_met" not in r else ("met" if r["goal_met"] else "not met")
+        cells = [
+            f"`{r['env_id']}`",
+            training,
+            _fmt(per.get("policy_mean_cost"), per.get("policy_ci95")),
+            _fmt(per.get("best_fixed_mean_cost"), per.get("best_fixed_ci95")),
+            _fmt(per.get("gain_table_mean_cost"), per.get("gain_table_ci95")),
+            _fmt(r["oracle_mean_cost"]),
+            _fmt(per.get("policy_over_best_fixed"), per.get("policy_over_best_fixed_ci95")),
+            _fmt(per.get("policy_over_gain_table"), per.get("policy_over_gain_table_ci95")),
+            goal,
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def write_table(doc: dict[str, Any], path: Path) -> None:
+    """Replace the table between :data:`TABLE_MARKERS` in ``path`` (docs/envs.md)."""
+    text = path.read_text()
+    head, sep, rest = text.partition(TABLE_MARKERS[0] + "\n")
+    _, sep2, tail = rest.partition(TABLE_MARKERS[1])
+    if not (sep and sep2):
+        raise SystemExit(f"{path}: the markers {TABLE_MARKERS} are not both there.")
+    path.write_text(head + sep + table(doc) + "\n" + sep2 + tail)
+
+
 def main(argv: list[str] | None = None) -> None:
     args = _parse(argv)
+    if args.table_only:
+        write_table(json.loads(args.out.read_text()), args.docs)
+        print(f"wrote the table of {args.out} into {args.docs}")
+        return
     from servogym.envs._scenarios import SCENARIOS
 
     if str(HERE) not in sys.path:
@@ -495,6 +566,9 @@ def main(argv: list[str] | None = None) -> None:
     tmp.write_text(json.dumps(doc, indent=1) + "\n")
     tmp.replace(args.out)
     print(f"wrote {args.out}")
+    if args.docs.exists():
+        write_table(doc, args.docs)
+        print(f"wrote its table into {args.docs}")
 
 
 if __name__ == "__main__":

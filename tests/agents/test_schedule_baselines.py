@@ -243,3 +243,16 @@ def test_gain_table_runs_on_a_machine_action():
         want = light if k % 2 == 0 else heavy
         assert int(info["params"]["kp.1"]) == want["kp.1"]
         assert (info["payload_kg"] > 0.05) == (k % 2 == 1)
+
+
+def test_the_docs_table_is_the_committed_summarys(study):
+    """docs/envs.md's table of policies against the baselines is the one the committed
+    summary.json gives (the script writes both; a hand edit of either shows here)."""
+    root = _SCRIPT.parents[1]
+    doc = json.loads((root / "experiments/results/schedule/summary.json").read_text())
+    page = (root / "docs/envs.md").read_text()
+    start, end = (page.index(m) for m in study.TABLE_MARKERS)
+    shown = page[start + len(study.TABLE_MARKERS[0]) : end].strip()
+    assert shown == study.table(doc)
+    for row in doc["scenarios"]:
+        assert f"`{row['env_id']}`" in shown
