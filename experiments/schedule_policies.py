@@ -86,7 +86,8 @@ def _parse(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--episodes-out", type=Path, default=RESULTS / "episodes.jsonl")
     ap.add_argument("--out", type=Path, default=RESULTS / "summary.json")
     ap.add_argument("--docs", type=Path, default=ROOT / "docs" / "envs.md",
-                    help="the page whose table of the summary is written again")  # fmt: skip
+                    help="the page whose table of the summary is written again (only "
+                    "when --out is the committed summary, or with --table-only)")  # fmt: skip
     ap.add_argument("--table-only", action="store_true",
                     help="write --out's table into --docs, nothing else")  # fmt: skip
     args = ap.parse_args(argv)
@@ -497,7 +498,9 @@ def write_table(doc: dict[str, Any], path: Path) -> None:
     _, sep2, tail = rest.partition(TABLE_MARKERS[1])
     if not (sep and sep2):
         raise SystemExit(f"{path}: the markers {TABLE_MARKERS} are not both there.")
-    path.write_text(head + sep + table(doc) + "\n" + sep2 + tail)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(head + sep + table(doc) + "\n" + sep2 + tail)
+    tmp.replace(path)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -566,8 +569,8 @@ def main(argv: list[str] | None = None) -> None:
     tmp.write_text(json.dumps(doc, indent=1) + "\n")
     tmp.replace(args.out)
     print(f"wrote {args.out}")
-    if args.docs.exists():
-        write_table(doc, args.docs)
+    if args.out.resolve() == (RESULTS / "summary.json").resolve() and args.docs.exists():
+        write_table(doc, args.docs)  # the committed summary's table, not a scratch run's
         print(f"wrote its table into {args.docs}")
 
 
