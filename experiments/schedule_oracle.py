@@ -76,6 +76,11 @@ def _parse() -> argparse.Namespace:
         "--robust-only", action="store_true",
         help="tune only the robust set of each scenario (the residual action's centre)",
     )  # fmt: skip
+    ap.add_argument(
+        "--chain", action="store_true",
+        help="on a machine, start each set from the checked set of the point before (the "
+        "robust one from the best checked set) instead of the id's centre",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, default=RESULTS / "oracle.jsonl")
     args = ap.parse_args()
     if args.tuner is None:
@@ -197,7 +202,8 @@ passes the check: what an engineer does when a set sits on the margins' edge and
 the load +-20 % (the check itself keeps the standard 6 dB / 30 degrees)."""
 
 
-def tune_set(s, args, point: float | None) -> dict[str, Any]:
+def tune_set(s, args, point: float | None,
+             start: dict[str, int] | None = None) -> dict[str, Any]:  # fmt: skip
     """Tune and check one set (``point=None``: the robust one); return its record part.
 
     When no candidate passes the check, tune again with tighter margin constraints
@@ -217,12 +223,12 @@ def tune_set(s, args, point: float | None) -> dict[str, Any]:
             min_phase_margin_deg=config.min_phase_margin_deg + extra_deg,
         )
         problem = tune.problem()
-        if _is_machine(s):  # no machine model for the design: the id's safe centre
-            start = machine_center(s)
+        if _is_machine(s):  # no machine model for the design: a checked set or the centre
+            warm = start or machine_center(s)
         else:
-            start = design_start(problem, tune).get("values")
+            warm = design_start(problem, tune).get("values")
         result = run_study(problem, tune.tuner, tune.budget, storage=None,
-                           n_workers=tune.workers, warm_start=start)  # fmt: skip
+                           n_workers=tune.workers, warm_start=warm)  # fmt: skip
         result, report = check_candidates(result, config)  # the standard check
         tried.append([extra_db, extra_deg, bool(report.passed)])
         if report.passed:
@@ -236,6 +242,23 @@ def tune_set(s, args, point: float | None) -> dict[str, Any]:
         "margin_steps": tried,
         "elapsed_s": time.perf_counter() - t0,
     }
+
+
+def chain_start(done: dict[tuple, dict[str, Any]], base: dict[str, Any],
+                i: int | str) -> tuple[str, dict[str, int]] | None:  # fmt: skip
+    """``--chain``'s warm start of set ``i`` on a machine: ``(which, values)`` of the set of
+    the point before (``i - 1``) when it passed the check, for the robust set the checked set
+    of lowest mean cross cost; ``None`` (the id's centre) otherwise. What an engineer does
+    going from an empty gripper to a heavy part: start from the set that works next to it."""
+    sets = {str(r["point"]): r for r in done.values() if r["kind"] == "set"
+            and all(r[k] == v for k, v in base.items()) and r["check_passed"]}  # fmt: skip
+    if i == "robust":
+        if not sets:
+            return None
+        name = min(sets, key=lambda k: float(np.mean(sets[k]["cross"])))
+        return name, sets[name]["values"]
+    prev = str(int(i) - 1)
+    return (prev, sets[prev]["values"]) if prev in sets else None
 
 
 def cross_costs(s, values: dict[str, int], points: list[float]) -> list[float]:
@@ -371,7 +394,12 @@ def main() -> None:
                 "seed": args.seed,
                 "check_candidates": args.check_candidates,
             }
-            rec |= tune_set(s, args, v)
+            start = None
+            if _is_machine(s) and args.chain:
+                start = chain_start(done, base, i)
+                rec["warm_start"] = "centre" if start is None else start[0]
+                start = None if start is None else start[1]
+            rec |= tune_set(s, args, v, start)
             rec["cross"] = cross_costs(s, rec["values"], points)
             rec["elapsed_s"] = time.perf_counter() - t0
             _append(args.out, rec)
@@ -401,6 +429,7 @@ def main() -> None:
             f"nice -n 10 .venv/bin/python experiments/schedule_oracle.py --scenarios {s.name} "
             + " ".join(f"--{k} {getattr(args, k)}"
                        for k in ("points", "budget", "robust", "episodes", "seed", "label"))
+            + (" --chain" if args.chain else "")
         )  # fmt: skip
         summaries.append(summary)
         print(f"{s.name}: oracle gap {summary['oracle_gap']:.3g} (best fixed "

@@ -256,3 +256,23 @@ def test_the_docs_table_is_the_committed_summarys(study):
     assert shown == study.table(doc)
     for row in doc["scenarios"]:
         assert f"`{row['env_id']}`" in shown
+
+
+def test_chain_starts_from_the_checked_set_before(oracle_script):
+    """``--chain``: a machine point starts from the point before when its set passed the
+    check, the robust set from the checked set of lowest mean cross cost, else the centre."""
+    base = {"scenario": "TwoLinkArm", "budget": 60, "label": "x", "points": 3}
+
+    def rec(point, passed, cross, kp):
+        r = {"kind": "set", "point": point, **base, "check_passed": passed, "cross": cross,
+             "values": {"kp.1": kp}}  # fmt: skip
+        return oracle_script._key(r), r
+
+    done = dict([rec(0, True, [1.0, 9.0, 9.0], 10), rec(1, False, [2.0, 1.0, 3.0], 20)])
+    assert oracle_script.chain_start(done, base, 1) == ("0", {"kp.1": 10})
+    assert oracle_script.chain_start(done, base, 2) is None  # point 1 failed the check
+    assert oracle_script.chain_start(done, base, 0) is None
+    done.update([rec(2, True, [3.0, 2.0, 1.0], 30)])
+    assert oracle_script.chain_start(done, base, "robust") == ("2", {"kp.1": 30})
+    other = {**base, "label": "y"}
+    assert oracle_script.chain_start(done, other, "robust") is None
