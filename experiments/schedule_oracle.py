@@ -261,18 +261,16 @@ def chain_start(done: dict[tuple, dict[str, Any]], base: dict[str, Any],
     return (prev, sets[prev]["values"]) if prev in sets else None
 
 
-def cross_costs(s, values: dict[str, int], points: list[float]) -> list[float]:
+def cross_costs(s, values: dict[str, int], points: list[float], args) -> list[float]:
     """The set's cost at every operating point (nominal otherwise; the RK4 loop)."""
     from servogym.sim import Evaluator, Scenario
 
-    if _is_machine(s):  # the machine's tasks, as tuned
+    if _is_machine(s):  # the machine's tasks, as tuned (the point's tuning problem)
         from servogym.autotune._machine import MachineEvaluator
 
         costs = []
         for v in points:
-            problem = _config(s, argparse.Namespace(
-                budget=1, tuner="random", seed=0, workers=1, robust=1, check_candidates=1), v
-            ).problem()  # fmt: skip
+            problem = _config(s, args, v).problem()
             ev = MachineEvaluator(problem.scenario)
             costs.append(float(ev.evaluate(problem.space.make_params(values)).cost))
         return costs
@@ -394,13 +392,11 @@ def main() -> None:
                 "seed": args.seed,
                 "check_candidates": args.check_candidates,
             }
-            start = None
+            chained = chain_start(done, base, i) if _is_machine(s) and args.chain else None
             if _is_machine(s) and args.chain:
-                start = chain_start(done, base, i)
-                rec["warm_start"] = "centre" if start is None else start[0]
-                start = None if start is None else start[1]
-            rec |= tune_set(s, args, v, start)
-            rec["cross"] = cross_costs(s, rec["values"], points)
+                rec["warm_start"] = chained[0] if chained else "centre"
+            rec |= tune_set(s, args, v, chained[1] if chained else None)
+            rec["cross"] = cross_costs(s, rec["values"], points, args)
             rec["elapsed_s"] = time.perf_counter() - t0
             _append(args.out, rec)
             done[_key(rec)] = rec
