@@ -134,20 +134,27 @@ def get_any_scenario(name: str) -> Any:
     machines = dict(MACHINE_SCENARIOS)
     if name in SCENARIOS or name not in machines:
         return get_scenario(name)  # raises naming the scenarios for an unknown name
+    return machine_scenario(f"servogym/Schedule-PMD-{name}-v1")
+
+
+def machine_scenario(env_id: str) -> Any:
+    """The ``ScheduleScenario`` of a multi-axis Schedule id (``servogym/Schedule-PMAC-XyStage-v1``):
+    its chip model, its cycle's parameter, empty value and part range, the id's box of the
+    other drawn parameters."""
     import gymnasium as gym
 
     import servogym  # noqa: F401
     from servogym.envs._machine import MACHINE_CYCLES
     from servogym.envs._scenarios import ScheduleScenario
 
-    plant = machines[name]
-    cycle = MACHINE_CYCLES[plant]
-    eid = f"servogym/Schedule-PMD-{name}-v1"
-    env = gym.make(eid)
+    env = gym.make(env_id)
     u = env.unwrapped
+    plant, family = u.scenario.plant, u.chip.name
+    cycle = MACHINE_CYCLES[plant]
     box = {k: tuple(v) for k, v in u.scenario.box().items() if k != cycle.param}
+    name = env_id.split("/")[-1].split("-")[2]
     env.close()
-    return ScheduleScenario(name=name, family="pmd", chip_model=u.scenario.chip_model,
+    return ScheduleScenario(name=name, family=family, chip_model=u.scenario.chip_model,
                             plant=plant, param=cycle.param, empty=cycle.empty,
                             part=tuple(cycle.part), plant_range=box)  # fmt: skip
 

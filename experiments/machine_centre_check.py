@@ -1,0 +1,178 @@
+"""Do the multi-axis Schedule ids' safe centres pass ``servogym check``?
+
+A Schedule id's residual action acts around its centre: the zero action runs that set on
+every move. The single-axis scenarios' centres are robust sets that passed the check
+(``servogym.envs._scenarios``); the multi-axis ids' centres
+(``servogym.envs._machine.MACHINE_CENTERS``) were searched on episode cost alone
+(``experiments/machine_schedule_centres.py``). This script puts each through the multi-axis
+check at ``--points`` operating points of the id's cycle (the payload log-spaced from the
+empty gripper to the part range's high end, the other parameters nominal: the points
+``experiments/schedule_oracle.py`` tunes at), on the machine's default tasks:
+
+    .venv/bin/python experiments/machine_centre_check.py                 # every machine id
+    .venv/bin/python experiments/machine_centre_check.py \\
+        --ids servogym/Schedule-PMD-TwoLinkArm-v1 --sets oracle:chain-150  # the oracle's sets
+
+``--sets centre`` (the default) checks the centres of ``--version``'s ids;
+``--sets oracle:<label>`` checks instead the robust set of ``schedule_oracle.py``'s run of that
+label (a candidate replacement); ``--sets detuned`` checks the centre with its loop gain
+scaled down (:data:`DETUNE_REGISTERS` times each of :data:`DETUNE_SCALES` in turn, the
+heaviest point first) until a scale passes at every point: what an engineer does with a set
+that rings, and a candidate replacement that needs no tuning.
+
+Resumable: one JSON line per (id, set, point) in ``--out``
+(``experiments/results/schedule/machine_centre_checks.jsonl``); a re-run skips what is there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+if str(Path(__file__).parent) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).parent))
+
+import schedule_oracle as so
+
+RESULTS = Path(__file__).parent / "results" / "schedule"
+
+
+def machine_ids(version: int) -> list[str]:
+    """Every multi-axis Schedule id of ``version``, in registry order."""
+    from servogym import _registration as r
+
+    return [
+        r.make_id("Schedule", family_id, plant, version)
+        for family_id, _ in r.BUILTIN_FAMILIES.values()
+        for plant in r.BUILTIN_MACHINE_PLANTS
+    ]
+
+
+DETUNE_REGISTERS: dict[str, tuple[str, ...]] = {
+    "pmd": ("kp", "ki", "kd"),
+    "pmac": ("proportional_gain",),
+    "parker6k": ("sgp", "sgi", "sgv"),
+}
+"""Per chip family, the registers whose common scale is the loop gain: PMD's feedback terms
+(the feed-forward and Kout kept), PMAC's Ixx30 (it multiplies the whole servo sum), the
+6250's parallel P, I and velocity-feedback gains (docs/chips/parker6k.md, section 4)."""
+
+DETUNE_SCALES: tuple[float, ...] = (2**-0.5, 0.5, 2**-1.5, 0.25, 2**-2.5, 0.125)
+"""Loop-gain scales tried in turn, 3 dB apart (the first that passes everywhere is kept)."""
+
+
+def detuned(values: dict[str, int], family: str, scale: float) -> dict[str, int]:
+    """``values`` with every axis's :data:`DETUNE_REGISTERS` times ``scale`` (rounded; a
+    non-zero gain stays >= 1)."""
+    regs = DETUNE_REGISTERS[family]
+    out = dict(values)
+    for name, v in values.items():
+        if name.split(".", 1)[0] in regs and v:
+            out[name] = max(1, round(v * scale))
+    return out
+
+
+def oracle_set(scenario: str, label: str, path: Path) -> dict[str, int]:
+    """The robust set of ``schedule_oracle.py``'s run ``label`` on ``scenario``."""
+    recs = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+    found = [r for r in recs if r["kind"] == "set" and r["scenario"] == scenario
+             and r["label"] == label and r["point"] == "robust"]  # fmt: skip
+    if not found:
+        raise SystemExit(f"no robust set of label {label!r} for {scenario} in {path}")
+    return {k: int(v) for k, v in found[-1]["values"].items()}
+
+
+def check_at(s, values: dict[str, int], point: float, workers: int) -> dict[str, Any]:
+    """The multi-axis check of ``values`` at ``point`` (the tuning problem's limits)."""
+    from servogym.autotune._tuners import DEFAULT_TUNER
+
+    args = argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=workers, robust=1,
+                              check_candidates=1)  # fmt: skip
+    config = so._config(s, args, point)
+    problem = config.problem()
+    report = problem.check(problem.space.make_params(values), config.check_limits(),
+                           workers=workers)  # fmt: skip
+    worst = {axis: {k: {"value": float(v["value"]), "case": str(v["case"])}
+                    for k, v in w.items()} for axis, w in report.worst.items()}  # fmt: skip
+    return {"passed": bool(report.passed), "failures": list(report.failures)[:8],
+            "worst": worst, "elapsed_s": float(report.elapsed_s)}  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ids", default=None, help="comma-separated env ids (default: every one)")
+    ap.add_argument("--version", type=int, default=1, help="the ids' version (default: 1)")
+    ap.add_argument("--sets", default="centre", help="centre, detuned or oracle:<label>")
+    ap.add_argument("--points", type=int, default=3, help="operating points (>= 2)")
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--oracle", type=Path, default=RESULTS / "oracle.jsonl")
+    ap.add_argument("--out", type=Path, default=RESULTS / "machine_centre_checks.jsonl")
+    args = ap.parse_args()
+    if args.points < 2:
+        raise SystemExit(f"--points must be >= 2; got --points {args.points}.")
+    if args.sets not in ("centre", "detuned") and not args.sets.startswith("oracle:"):
+        raise SystemExit(
+            f"--sets must be centre, detuned or oracle:<label>; got --sets {args.sets}."
+        )
+    ids = args.ids.split(",") if args.ids else machine_ids(args.version)
+    done: dict[tuple, dict[str, Any]] = {}
+    if args.out.exists():
+        for line in args.out.read_text().splitlines():
+            try:
+                r = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # a line torn by a kill: checked again
+            done[(r["env_id"], r["sets"], r["points"], r["point"])] = r
+    for eid in ids:
+        s = so.machine_scenario(eid.strip())
+        points = s.operating_points(args.points)
+        if args.sets == "detuned":
+            centre = so.machine_center(s)
+            for scale in DETUNE_SCALES:
+                label = f"detuned:{scale:.3f}"
+                order = list(range(len(points)))[::-1]  # the heaviest first: it fails first
+                if all(_run(args, done, eid, s, label, detuned(centre, s.family, scale), i,
+                            points[i]) for i in order):  # fmt: skip
+                    print(f"{eid}: the centre times {scale:.3f} passes at every point", flush=True)
+                    break
+            else:
+                print(f"{eid}: no scale down to {DETUNE_SCALES[-1]} passes", flush=True)
+            continue
+        if args.sets == "centre":
+            values = so.machine_center(s)
+        else:
+            values = oracle_set(s.name, args.sets.split(":", 1)[1], args.oracle)
+        for i, v in enumerate(points):
+            _run(args, done, eid, s, args.sets, values, i, v)
+
+
+def _run(args, done: dict, eid: str, s, label: str, values: dict[str, int], i: int,
+         v: float) -> bool:  # fmt: skip
+    """Check ``values`` at point ``i`` unless a line has it; append the line; passed?"""
+    key = (eid, label, args.points, i)
+    if key in done:
+        return done[key]["passed"]
+    t0 = time.perf_counter()
+    rec = {"env_id": eid, "sets": label, "points": args.points, "point": i, s.param: v,
+           "values": values, **check_at(s, values, v, args.workers)}  # fmt: skip
+    rec["wall_s"] = time.perf_counter() - t0
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with args.out.open("a") as f:
+        f.write(json.dumps(rec) + "\n")
+    done[key] = rec
+    gm, pm = (min(w[k]["value"] for w in rec["worst"].values())
+              for k in ("gain_margin_db", "phase_margin_deg"))  # fmt: skip
+    print(f"{eid} {label} {s.param}={v:.3g}: "
+          f"{'passed' if rec['passed'] else 'FAILED'}; worst gain margin {gm:.3g} dB, "
+          f"phase margin {pm:.3g} deg "
+          f"({rec['wall_s']:.0f} s){'; ' + rec['failures'][0] if rec['failures'] else ''}",
+          flush=True)  # fmt: skip
+    return rec["passed"]
+
+
+if __name__ == "__main__":
+    main()
