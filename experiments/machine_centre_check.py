@@ -11,7 +11,7 @@ empty gripper to the part range's high end, the other parameters nominal: the po
 
     .venv/bin/python experiments/machine_centre_check.py                 # every machine id
     .venv/bin/python experiments/machine_centre_check.py \\
-        --ids servogym/Schedule-PMD-TwoLinkArm-v1 --sets oracle:chain-150  # the oracle's sets
+        --ids servogym/Schedule-PMD-TwoLinkArm-v1 --sets oracle:chain-150  # an oracle set
 
 ``--sets centre`` (the default) checks the centres of ``--version``'s ids;
 ``--sets oracle:<label>`` checks instead the robust set of ``schedule_oracle.py``'s run of that
@@ -61,8 +61,9 @@ DETUNE_REGISTERS: dict[str, tuple[str, ...]] = {
 (the feed-forward and Kout kept), PMAC's Ixx30 (it multiplies the whole servo sum), the
 6250's parallel P, I and velocity-feedback gains (docs/chips/parker6k.md, section 4)."""
 
-DETUNE_SCALES: tuple[float, ...] = (2**-0.5, 0.5, 2**-1.5, 0.25, 2**-2.5, 0.125)
-"""Loop-gain scales tried in turn, 3 dB apart (the first that passes everywhere is kept)."""
+DETUNE_SCALES: tuple[float, ...] = (1.0, 2**-0.5, 0.5, 2**-1.5, 0.25, 2**-2.5, 0.125)
+"""Loop-gain scales tried in turn, 3 dB apart (the first that passes everywhere is kept; 1:
+the centre itself, whose lines are ``--sets centre``'s)."""
 
 
 def detuned(values: dict[str, int], family: str, scale: float) -> dict[str, int]:
@@ -133,7 +134,7 @@ def main() -> None:
         if args.sets == "detuned":
             centre = so.machine_center(s)
             for scale in DETUNE_SCALES:
-                label = f"detuned:{scale:.3f}"
+                label = "centre" if scale == 1.0 else f"detuned:{scale:.3f}"
                 order = list(range(len(points)))[::-1]  # the heaviest first: it fails first
                 if all(_run(args, done, eid, s, label, detuned(centre, s.family, scale), i,
                             points[i]) for i in order):  # fmt: skip
