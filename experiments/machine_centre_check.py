@@ -4,14 +4,16 @@ A Schedule id's residual action acts around its centre: the zero action runs tha
 every move. The single-axis scenarios' centres are robust sets that passed the check
 (``servogym.envs._scenarios``); the multi-axis ids' centres
 (``servogym.envs._machine.MACHINE_CENTERS``) were searched on episode cost alone
-(``experiments/machine_schedule_centres.py``). This script puts each through the multi-axis
-check at ``--points`` operating points of the id's cycle (the payload log-spaced from the
-empty gripper to the part range's high end, the other parameters nominal: the points
-``experiments/schedule_oracle.py`` tunes at), on the machine's default tasks:
+(``experiments/machine_schedule_centres.py``). This script puts a set
+through the multi-axis check at ``--points`` operating points of the id's cycle (the
+payload log-spaced from the empty gripper to the part range's high end, the other
+parameters nominal: the points ``experiments/schedule_oracle.py`` tunes at), on the
+machine's default tasks:
 
     .venv/bin/python experiments/machine_centre_check.py                 # every machine id
     .venv/bin/python experiments/machine_centre_check.py \\
         --ids servogym/Schedule-PMD-TwoLinkArm-v1 --sets oracle:chain-150  # an oracle set
+    .venv/bin/python experiments/machine_centre_check.py --costs   # cost per move at zero
 
 ``--sets centre`` (the default) checks the centres of ``--version``'s ids;
 ``--sets oracle:<label>`` checks instead the robust set of ``schedule_oracle.py``'s run of that
@@ -103,6 +105,26 @@ def check_at(s, values: dict[str, int], point: float, workers: int) -> dict[str,
             "worst": worst, "elapsed_s": float(report.elapsed_s)}  # fmt: skip
 
 
+def zero_action_cost(env_id: str, seeds: tuple[int, ...] = (0, 1), moves: int = 4) -> float:
+    """The id's mean cost per move at the zero action (its centre on every move) over
+    ``seeds`` episodes of ``moves`` moves: the measure of the centres' table in docs/envs.md
+    (``experiments/machine_schedule_centres.py``'s objective)."""
+    import gymnasium as gym
+    import numpy as np
+
+    env = gym.make(env_id, n_moves=moves)
+    zero = np.zeros(env.action_space.shape, np.float32)
+    costs = []
+    for seed in seeds:
+        env.reset(seed=seed)
+        done = False
+        while not done:
+            _, _, term, trunc, info = env.step(zero)
+            costs.append(info["cost"])
+            done = term or trunc
+    return float(np.mean(costs))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ids", default=None, help="comma-separated env ids (default: every one)")
@@ -112,7 +134,18 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--oracle", type=Path, default=RESULTS / "oracle.jsonl")
     ap.add_argument("--out", type=Path, default=RESULTS / "machine_centre_checks.jsonl")
+    ap.add_argument(
+        "--costs", action="store_true",
+        help="print every machine Schedule id's cost per move at the zero action instead",
+    )  # fmt: skip
     args = ap.parse_args()
+    if args.costs:
+        from servogym._registration import MACHINE_VERSIONS
+
+        for version in MACHINE_VERSIONS:
+            for eid in machine_ids(version):
+                print(f"{eid}: {zero_action_cost(eid):.3g} per move at the zero action", flush=True)
+        return
     if args.points < 2:
         raise SystemExit(f"--points must be >= 2; got --points {args.points}.")
     if args.sets not in ("centre", "detuned") and not args.sets.startswith("oracle:"):

@@ -79,7 +79,8 @@ def _parse() -> argparse.Namespace:
     ap.add_argument(
         "--chain", action="store_true",
         help="on a machine, start each set from the checked set of the point before (the "
-        "robust one from the best checked set) instead of the id's centre",
+        "robust one from the best checked set) or the id's centre, whichever is feasible "
+        "and cheaper there",
     )  # fmt: skip
     ap.add_argument("--out", type=Path, default=RESULTS / "oracle.jsonl")
     args = ap.parse_args()
@@ -122,7 +123,7 @@ def _append(path: Path, rec: dict[str, Any]) -> None:
 
 MACHINE_SCENARIOS: tuple[tuple[str, str], ...] = (("TwoLinkArm", "two-link-arm"),)
 """Scenario name -> multi-axis plant: the machines' Schedule ids
-(``servogym/Schedule-PMD-TwoLinkArm-v1``), studied on the PMD family's id."""
+(``servogym/Schedule-PMD-TwoLinkArm-v1``, the newest), studied on the PMD family's id."""
 
 
 def get_any_scenario(name: str) -> Any:
@@ -134,7 +135,9 @@ def get_any_scenario(name: str) -> Any:
     machines = dict(MACHINE_SCENARIOS)
     if name in SCENARIOS or name not in machines:
         return get_scenario(name)  # raises naming the scenarios for an unknown name
-    return machine_scenario(f"servogym/Schedule-PMD-{name}-v1")
+    from servogym._registration import MACHINE_VERSIONS
+
+    return machine_scenario(f"servogym/Schedule-PMD-{name}-v{MACHINE_VERSIONS[-1]}")
 
 
 def machine_scenario(env_id: str) -> Any:
@@ -166,7 +169,7 @@ def _is_machine(s) -> bool:
 
 
 def machine_center(s) -> dict[str, int]:
-    """The machine id's safe centre, every axis's registers (``kp.1``, ``kp.2``)."""
+    """The machine id's centre, every axis's registers (``kp.1``, ``kp.2``)."""
     from servogym.envs._machine import MACHINE_CENTERS, axis_register
 
     sets = MACHINE_CENTERS[(s.family, s.plant)]
@@ -268,6 +271,31 @@ def chain_start(done: dict[tuple, dict[str, Any]], base: dict[str, Any],
     return (prev, sets[prev]["values"]) if prev in sets else None
 
 
+def pick_start(
+    s, args, point: float | None, candidates: list[tuple[str, dict[str, int]]]
+) -> tuple[str, dict[str, int], list]:
+    """``--chain``'s warm start of a set on a machine: of ``candidates`` (``(name, values)``:
+    the chain's set and the id's centre), the one feasible on the set's own tuning problem
+    (every constraint met on its nominal plant, or its draws) at the lowest cost, else the
+    cheapest; the safe tuner grows its region from the start, so an infeasible start leaves
+    it nowhere to go.
+
+    Returns ``(name, values, probes)``, ``probes`` each candidate's ``[name, cost,
+    feasible]``."""
+    from servogym.autotune._job import run_study
+    from servogym.autotune._session import is_feasible
+
+    config = _config(s, args, point)
+    probes = []
+    for name, values in candidates:
+        result = run_study(config.problem(), config.tuner, 1, storage=None,
+                           n_workers=1, warm_start=values)  # fmt: skip
+        trial = result.trials[0]
+        probes.append([name, float(trial.values[0]), bool(is_feasible(trial))])
+    best = min(range(len(probes)), key=lambda k: (not probes[k][2], probes[k][1]))
+    return candidates[best][0], candidates[best][1], probes
+
+
 def cross_costs(s, values: dict[str, int], points: list[float], args) -> list[float]:
     """The set's cost at every operating point (nominal otherwise; the RK4 loop)."""
     from servogym.sim import Evaluator, Scenario
@@ -327,9 +355,11 @@ def episodes(s, policies: dict[str, Any], n: int, seed: int) -> dict[str, dict[s
 
 
 def _scenario_id(s) -> str:
-    from servogym._registration import BUILTIN_FAMILIES
+    """The scenario's newest Schedule id."""
+    from servogym._registration import BUILTIN_FAMILIES, MACHINE_VERSIONS, SCENARIO_VERSIONS
 
-    return f"servogym/Schedule-{BUILTIN_FAMILIES[s.family][0]}-{s.name}-v1"
+    version = (MACHINE_VERSIONS if _is_machine(s) else SCENARIO_VERSIONS)[-1]
+    return f"servogym/Schedule-{BUILTIN_FAMILIES[s.family][0]}-{s.name}-v{version}"
 
 
 def summarize(records: list[dict[str, Any]], s, points: list[float], label: str,
@@ -399,10 +429,14 @@ def main() -> None:
                 "seed": args.seed,
                 "check_candidates": args.check_candidates,
             }
-            chained = chain_start(done, base, i) if _is_machine(s) and args.chain else None
+            start = None
             if _is_machine(s) and args.chain:
-                rec["warm_start"] = chained[0] if chained else "centre"
-            rec |= tune_set(s, args, v, chained[1] if chained else None)
+                chained = chain_start(done, base, i)
+                candidates = [chained] if chained else []
+                candidates.append(("centre", machine_center(s)))
+                name, start, probes = pick_start(s, args, v, candidates)
+                rec |= {"warm_start": name, "start_probes": probes}
+            rec |= tune_set(s, args, v, start)
             rec["cross"] = cross_costs(s, rec["values"], points, args)
             rec["elapsed_s"] = time.perf_counter() - t0
             _append(args.out, rec)

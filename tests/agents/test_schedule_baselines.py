@@ -207,7 +207,7 @@ def test_the_two_link_arm_scenario_is_its_schedule_ids_cycle(oracle_script):
 
     s = oracle_script.get_any_scenario("TwoLinkArm")
     cycle = MACHINE_CYCLES["two-link-arm"]
-    assert oracle_script._scenario_id(s) == "servogym/Schedule-PMD-TwoLinkArm-v1"
+    assert oracle_script._scenario_id(s) == "servogym/Schedule-PMD-TwoLinkArm-v1"  # the newest
     assert (s.param, s.empty, s.part) == (cycle.param, cycle.empty, tuple(cycle.part))
     assert s.param not in s.plant_range and "shoulder_coulomb_friction_nm" in s.plant_range
     points = s.operating_points(3)
@@ -276,3 +276,29 @@ def test_chain_starts_from_the_checked_set_before(oracle_script):
     assert oracle_script.chain_start(done, base, "robust") == ("2", {"kp.1": 30})
     other = {**base, "label": "y"}
     assert oracle_script.chain_start(done, other, "robust") is None
+
+
+def test_the_chain_starts_where_the_set_is_feasible_then_cheapest(oracle_script, monkeypatch):
+    """``pick_start``: each candidate is one trial of the set's own problem; a feasible one
+    wins over a cheaper infeasible one, then the cheaper; none feasible: the cheapest."""
+    import types
+
+    from servogym.autotune import _job
+
+    outcomes = {10: (5.0, {"margin": 1.0}), 20: (9.0, {"margin": -1.0}), 30: (7.0, {"m": -2.0})}
+
+    def fake_run_study(problem, tuner, budget, storage, n_workers, warm_start):
+        cost, constraints = outcomes[warm_start["kp.1"]]
+        trial = types.SimpleNamespace(values=[cost], constraints=constraints)
+        return types.SimpleNamespace(trials=[trial])
+
+    monkeypatch.setattr(_job, "run_study", fake_run_study)
+    s = oracle_script.get_any_scenario("TwoLinkArm")
+    args = type("A", (), dict(budget=5, tuner="safe", seed=0, workers=1, robust=3,
+                              check_candidates=1))()  # fmt: skip
+    cands = [("1", {"kp.1": 10}), ("centre", {"kp.1": 20}), ("c2", {"kp.1": 30})]
+    name, values, probes = oracle_script.pick_start(s, args, 2.0, cands)
+    assert (name, values) == ("c2", {"kp.1": 30})  # feasible and cheaper than "centre"
+    assert probes == [["1", 5.0, False], ["centre", 9.0, True], ["c2", 7.0, True]]
+    name, _, _ = oracle_script.pick_start(s, args, None, cands[:1])
+    assert name == "1"  # the only one, infeasible
