@@ -108,21 +108,13 @@ def check_at(s, values: dict[str, int], point: float, workers: int) -> dict[str,
 def zero_action_cost(env_id: str, seeds: tuple[int, ...] = (0, 1), moves: int = 4) -> float:
     """The id's mean cost per move at the zero action (its centre on every move) over
     ``seeds`` episodes of ``moves`` moves: the measure of the centres' table in docs/envs.md
-    (``experiments/machine_schedule_centres.py``'s objective)."""
+    (``experiments/machine_schedule_centres.py``'s objective, whose episode loop this is)."""
     import gymnasium as gym
     import numpy as np
+    from machine_schedule_centres import episode_cost
 
     env = gym.make(env_id, n_moves=moves)
-    zero = np.zeros(env.action_space.shape, np.float32)
-    costs = []
-    for seed in seeds:
-        env.reset(seed=seed)
-        done = False
-        while not done:
-            _, _, term, trunc, info = env.step(zero)
-            costs.append(info["cost"])
-            done = term or trunc
-    return float(np.mean(costs))
+    return episode_cost(env, np.zeros(env.action_space.shape, np.float32), list(seeds))
 
 
 def main() -> None:
