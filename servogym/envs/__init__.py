@@ -52,6 +52,7 @@ from servogym.envs._schedule import (
 from servogym.envs._schedule import observation_table as _schedule_obs_table
 from servogym.envs._tune import IDENT_SCALE, TuneEnv
 from servogym.envs._tune import observation_table as _tune_obs_table
+from servogym.envs._vector import GroupedAsyncVectorEnv
 from servogym.plants import MULTI_PLANTS, PLANTS
 
 NAMESPACE = _registration.NAMESPACE
@@ -150,6 +151,7 @@ __all__ = [
     "VERSIONS",
     "ActionMap",
     "GainTable",
+    "GroupedAsyncVectorEnv",
     "PickAndPlace",
     "RawActions",
     "ResidualActions",
