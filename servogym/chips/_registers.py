@@ -91,6 +91,7 @@ class RegisterTable(Mapping[str, Register]):
         self.family = family
         self.rows = tuple(rows)
         self._by_name = {r.name: r for r in self.rows}
+        self._spaces: dict[Any, ParameterSpace] = {}
         if len(self._by_name) != len(self.rows):
             raise ValueError(f"duplicate register names in the {family} register table")
 
@@ -132,11 +133,22 @@ class RegisterTable(Mapping[str, Register]):
             omit: Registers the model does not have.
         """
         changes = changes or {}
-        unknown = set(changes).union(omit) - set(self._by_name)
+        dropped = frozenset(omit)
+        try:  # a ParameterSpace is immutable: build each model's once (envs ask every step)
+            key: Any = (
+                model,
+                tuple(sorted((k, tuple(sorted(v.items()))) for k, v in changes.items())),
+                dropped,
+            )
+            hash(key)
+        except TypeError:  # an unhashable change: build it every time
+            key = None
+        if key is not None and key in self._spaces:
+            return self._spaces[key]
+        unknown = set(changes).union(dropped) - set(self._by_name)
         if unknown:
             raise ValueError(f"{model} changes registers {sorted(unknown)} the table lacks")
-        dropped = set(omit)
-        return ParameterSpace(
+        space = ParameterSpace(
             model,
             [
                 dataclasses.replace(r, **changes.get(r.name, {})).spec()
@@ -144,6 +156,9 @@ class RegisterTable(Mapping[str, Register]):
                 if r.name not in dropped
             ],
         )
+        if key is not None:
+            self._spaces[key] = space
+        return space
 
     def spelled(self, dialect: str) -> list[tuple[Register, Spelling]]:
         """The registers a dialect names, with their spelling, in the dialect's export order."""

@@ -101,3 +101,15 @@ def test_defaults_round_trip_through_the_unit_mapping(model):
         if spec.log and spec.default < 0:
             continue  # a log-scaled register searches 0 and positive values only
         assert spec.from_unit(spec.to_unit(spec.default)) == spec.default, spec.name
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_parameter_space_is_built_once_per_model_and_differs_between_models(model):
+    # envs read the space every step, so the register table keeps each model's space
+    family = all_models()[model]
+    space = family.parameter_space(model)
+    assert family.parameter_space(model) is space
+    assert space.chip_model == model
+    others = [m for m in family.models if m != model]
+    for other in others:
+        assert family.parameter_space(other).chip_model == other

@@ -42,7 +42,8 @@ def test_same_results_as_sync_vector_env(env_id: str, n: int, workers: int) -> N
         assert grouped.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
         assert grouped.single_action_space == sync.single_action_space
         assert grouped.observation_space == sync.observation_space
-        assert [len(g) for g in grouped.groups] == [len(g) for g in np.array_split(range(n), workers)]
+        sizes = [len(g) for g in np.array_split(range(n), workers)]
+        assert [len(g) for g in grouped.groups] == sizes
         obs_a, info_a = sync.reset(seed=7)
         obs_b, info_b = grouped.reset(seed=7)
         np.testing.assert_array_equal(obs_a, obs_b)
@@ -73,14 +74,14 @@ def test_different_seeds_differ_and_seed_lists() -> None:
         np.testing.assert_array_equal(a, b)
         c, _ = envs.reset(seed=[3, 4])
         assert not np.array_equal(a, c)
-        with pytest.raises(ValueError, match="one seed per env \\(2\\); got 3 seeds"):
+        with pytest.raises(ValueError, match=r"one seed per env \(2\); got 3 seeds"):
             envs.reset(seed=[1, 2, 3])
 
 
 @pytest.mark.parametrize("workers", [0, 3, 1.5, True])
 def test_bad_workers(workers: object) -> None:
     fns = [partial(gym.make, SCHEDULE)] * 2
-    with pytest.raises(ValueError, match="1 <= workers <= len\\(env_fns\\) = 2; got workers="):
+    with pytest.raises(ValueError, match=r"1 <= workers <= len\(env_fns\) = 2; got workers="):
         GroupedAsyncVectorEnv(fns, workers=workers)  # type: ignore[arg-type]
 
 
@@ -94,7 +95,7 @@ def _broken_env() -> gym.Env:
 
 
 def test_a_worker_error_is_raised_with_its_traceback() -> None:
-    with pytest.raises(RuntimeError, match="(?s)worker 1.*this plant cannot be built"):
+    with pytest.raises(RuntimeError, match=r"(?s)worker 1.*this plant cannot be built"):
         GroupedAsyncVectorEnv([partial(gym.make, SCHEDULE), _broken_env], workers=2)
 
 
