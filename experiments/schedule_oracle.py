@@ -82,6 +82,12 @@ def _parse() -> argparse.Namespace:
         "robust one from the best checked set) or the id's centre, whichever is feasible "
         "and cheaper there",
     )  # fmt: skip
+    ap.add_argument(
+        "--margin-start", action="store_true",
+        help="on a machine, first move the warm start into the check's margins by a search "
+        "on the check's linear analysis (experiments/machine_margin_search.py): the safe "
+        "tuner cannot leave an infeasible start",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, default=RESULTS / "oracle.jsonl")
     args = ap.parse_args()
     if args.tuner is None:
@@ -296,6 +302,20 @@ def pick_start(
     return candidates[best][0], candidates[best][1], probes
 
 
+def margin_start(s, args, point: float | None, start: dict[str, int]) -> dict[str, Any]:
+    """``--margin-start``: ``start`` moved into the check's margins on the set's own problem
+    (its nominal plant, or for the robust set its draws), by
+    ``machine_margin_search.move_into_margins``; ``values`` is ``None`` when the search
+    did not reach its target slack."""
+    from machine_margin_search import move_into_margins
+
+    config = _config(s, args, point)
+    problem = config.problem()
+    # the check runs the nominal plant, then each draw (check_candidates' extra_plants)
+    plants = [{}, *problem.plant_instances()] if problem.n_plants > 1 else None
+    return move_into_margins(problem, config.check_limits(), start, plants=plants)
+
+
 def cross_costs(s, values: dict[str, int], points: list[float], args) -> list[float]:
     """The set's cost at every operating point (nominal otherwise; the RK4 loop)."""
     from servogym.sim import Evaluator, Scenario
@@ -436,6 +456,13 @@ def main() -> None:
                 candidates.append(("centre", machine_center(s)))
                 name, start, probes = pick_start(s, args, v, candidates)
                 rec |= {"warm_start": name, "start_probes": probes}
+            if _is_machine(s) and args.margin_start:
+                start = start or machine_center(s)
+                moved = margin_start(s, args, v, start)
+                rec["margin_start"] = {k: w for k, w in moved.items() if k != "values"}
+                if moved["values"] is not None and moved["values"] != start:
+                    start = moved["values"]
+                    rec["warm_start"] = rec.get("warm_start", "centre") + "+margins"
             rec |= tune_set(s, args, v, start)
             rec["cross"] = cross_costs(s, rec["values"], points, args)
             rec["elapsed_s"] = time.perf_counter() - t0
@@ -467,6 +494,7 @@ def main() -> None:
             + " ".join(f"--{k} {getattr(args, k)}"
                        for k in ("points", "budget", "robust", "episodes", "seed", "label"))
             + (" --chain" if args.chain else "")
+            + (" --margin-start" if args.margin_start else "")
         )  # fmt: skip
         summaries.append(summary)
         print(f"{s.name}: oracle gap {summary['oracle_gap']:.3g} (best fixed "

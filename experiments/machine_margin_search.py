@@ -1,0 +1,236 @@
+"""Move a multi-axis set into the check's margins: a search on the linear analysis alone.
+
+The safe tuner cannot leave an infeasible start (``schedule_oracle.py --chain`` found no
+feasible trial in 3 x 150 on the two-link arm at 2 kg, from the 0.32 kg set). This script
+searches the loop gains of a set (``kp``, ``ki``, ``kd``, ``kout`` of every axis, in log
+steps; the feed-forward and limits are kept) for the margins the multi-axis check asks, on
+the check's own linear analysis (``servogym.sim._multicheck``): every plant of its stress
+set (the machine as given, the load and the frictions at -+20 / -+50 %), every
+loop-latency x sequencing choice on the machine as given, every operating configuration of
+the tasks, as the check analyses them. No task is
+simulated in the search, so a candidate takes milliseconds to a second instead of the
+check's minutes. The objective is the worst slack, ``min(GM - 6 dB, (PM - 30 deg) / 5)``
+over every loop and case (an unstable machine: minus its spectral radius's excess, minus
+10), plus ``--cost-weight`` times the log of the loop gain given up (so that, of two sets
+with the margins, the search keeps the stiffer); scipy's Nelder-Mead from the given set,
+until the slack reaches ``--target`` dB. The set found then goes through the full check.
+
+    .venv/bin/python experiments/machine_margin_search.py \\
+        --scenario TwoLinkArm --point 2 --from-label chain-150 --label margin-2kg
+
+Appends one JSON line to ``experiments/results/schedule/margin_search.jsonl``: the start and
+found values, their slack, the search's evaluations, and the check's verdict.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+if str(Path(__file__).parent) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).parent))
+
+import schedule_oracle as so
+
+RESULTS = Path(__file__).parent / "results" / "schedule"
+GAINS = ("kp", "ki", "kd", "kout")
+"""The registers the search moves (every axis's), in log steps."""
+
+
+class LinearCheck:
+    """The multi-axis check's linear part for one set, on a machine built once."""
+
+    def __init__(
+        self, problem: Any, limits: Any, sets: list[Any], plants: list[dict] | None = None
+    ) -> None:
+        from servogym.sim._multicheck import (
+            _machine,
+            machine_stress_cases,
+            operating_configurations,
+        )
+
+        evaluator = problem.make_evaluator()
+        evaluator.plant.set_params(problem.nominal_plant())
+        self.limits = limits
+        self.cases = []
+        for k, values in enumerate(plants or [{}]):
+            machine, _ = _machine(sets, evaluator.multi, None, values, None, None, None, None)
+            self.machine = machine  # the same assumptions and sequencing for every plant
+            for case in machine_stress_cases(machine, limits):
+                if case.name.startswith(("latency", "sequencing")):
+                    continue  # every timing choice is analysed on the plant as given below
+                ev = machine.evaluator(case, limits)
+                name = case.name if not plants else f"plant {k + 1}: {case.name}"
+                self.cases.append((name, case.name == "reference", ev,
+                                   operating_configurations(ev.commands())))  # fmt: skip
+        self.cache: dict = {}
+
+    def slack(self, sets: list[Any]) -> tuple[float, str]:
+        """The worst slack (dB-equivalent) and where it is."""
+        from servogym.sim._machine import SEQUENCING, axis_latencies
+        from servogym.sim._multicheck import machine_margins
+
+        lim = self.limits
+        worst, where = np.inf, ""
+        asm0 = self.machine.assumptions
+        for name, everything, ev, configs in self.cases:
+            chip = ev.chip
+            # as the check: every timing choice on the machine as given, the stress plants
+            # at the machine's own timing
+            latencies = type(asm0).CHOICES["loop_latency"] if everything else [asm0.loop_latency]
+            sequencings = SEQUENCING[chip.name].choices if everything else [self.machine.sequencing]
+            for latency in latencies:
+                asm = dataclasses.replace(asm0, loop_latency=latency)
+                for seq in sequencings:
+                    mm = machine_margins(chip, sets, asm, ev.plant, configs,
+                                         axis_latencies(sets, asm, seq), self.cache)  # fmt: skip
+                    for per in mm.analyses:
+                        for k, a in enumerate(per):
+                            m = a.margins
+                            if not m.stable:
+                                s = -10.0 - 100.0 * max(m.spectral_radius - 1.0, 0.0)
+                            else:
+                                s = min(
+                                    m.gain_margin_db - lim.min_gain_margin_db,
+                                    (m.phase_margin_deg - lim.min_phase_margin_deg) / 5.0,
+                                )
+                            if s < worst:
+                                worst, where = s, f"{name}, {latency}/{seq}, loop {k + 1}"
+        return float(worst), where
+
+
+def move_into_margins(
+    problem: Any,
+    limits: Any,
+    start: dict[str, int],
+    *,
+    plants: list[dict] | None = None,
+    target: float = 0.5,
+    cost_weight: float = 0.5,
+    max_evals: int = 400,
+) -> dict[str, Any]:
+    """Nelder-Mead on the log loop gains of ``start`` until the worst slack on ``plants``
+    (the problem's plant as given, or these plant instances: a robust run's draws) reaches
+    ``target``. Returns ``{"values": the set found or None, "slack", "where",
+    "start_slack", "start_where", "evaluations", "search_s"}`` (without a set found,
+    ``slack`` is the best reached)."""
+    import scipy.optimize
+
+    space = problem.space
+    names = [n for n in start if n.split(".")[0] in GAINS]
+    x0 = np.log([max(start[n], 1) for n in names])
+
+    def values_of(x: np.ndarray) -> dict[str, int]:
+        out = dict(start)
+        for n, v in zip(names, x, strict=True):
+            spec = space.space[n]
+            out[n] = int(min(max(round(float(np.exp(v))), max(spec.low, 1)), spec.high))
+        return out
+
+    t0 = time.perf_counter()
+    lin = LinearCheck(problem, limits, space.make_params(start).sets, plants)
+    seen: dict[tuple, tuple[float, str]] = {}
+
+    def slack_of(values: dict[str, int]) -> tuple[float, str]:
+        key = tuple(values[n] for n in names)
+        if key not in seen:
+            seen[key] = lin.slack(space.make_params(values).sets)
+        return seen[key]
+
+    class _Done(Exception):
+        pass
+
+    best: dict[str, Any] = {}
+
+    def objective(x: np.ndarray) -> float:
+        v = values_of(x)
+        sl, where = slack_of(v)
+        given_up = float(np.sum(np.maximum(x0 - x, 0.0)))  # log gain below the start
+        f = -min(sl, target) + cost_weight * given_up
+        if sl >= target and (not best or f < best["f"]):
+            best.update(f=f, values=v, slack=sl, where=where)
+        if len(seen) >= max_evals:
+            raise _Done
+        return f
+
+    s0, where0 = slack_of(start)
+    out: dict[str, Any] = {"start_slack": s0, "start_where": where0}
+    if s0 >= target:
+        best.update(values=dict(start), slack=s0, where=where0)
+    else:
+        options = {"xatol": 0.01, "fatol": 1e-3, "maxfev": max_evals, "adaptive": True}
+        with contextlib.suppress(_Done):
+            scipy.optimize.minimize(objective, x0, method="Nelder-Mead", options=options)
+    if best:
+        out.update(values=best["values"], slack=best["slack"], where=best["where"])
+    else:
+        sl, where = max(seen.values())
+        out.update(values=None, slack=sl, where=where)
+    out.update(evaluations=len(seen), search_s=time.perf_counter() - t0)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="TwoLinkArm")
+    ap.add_argument("--point", type=int, default=2, help="operating point index (of --points)")
+    ap.add_argument("--points", type=int, default=3)
+    ap.add_argument("--from-label", default="chain-150", help="schedule_oracle label to start from")
+    ap.add_argument("--label", default="margin-search")
+    ap.add_argument("--target", type=float, default=0.5, help="slack to reach (dB-equivalent)")
+    ap.add_argument("--cost-weight", type=float, default=0.5)
+    ap.add_argument("--max-evals", type=int, default=400)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=RESULTS / "margin_search.jsonl")
+    args = ap.parse_args()
+
+    from servogym.autotune._tuners import DEFAULT_TUNER
+
+    s = so.get_any_scenario(args.scenario)
+    point = float(s.operating_points(args.points)[args.point])
+    start = None
+    for line in (RESULTS / "oracle.jsonl").read_text().splitlines():
+        rec = json.loads(line)
+        if (rec.get("scenario") == args.scenario and rec.get("label") == args.from_label
+                and rec.get("kind") == "set" and rec.get("point") == args.point):  # fmt: skip
+            start = {k: int(v) for k, v in rec["values"].items()}
+    if start is None:
+        raise SystemExit(f"no set of point {args.point} with label {args.from_label!r}")
+    ns = argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=args.workers,
+                            robust=1, check_candidates=1)  # fmt: skip
+    config = so._config(s, ns, point)
+    problem = config.problem()
+    limits = config.check_limits()
+    found = move_into_margins(problem, limits, start, target=args.target,
+                              cost_weight=args.cost_weight, max_evals=args.max_evals)  # fmt: skip
+    print(f"start: slack {found['start_slack']:.3f} at {found['start_where']}")
+    rec: dict[str, Any] = {"scenario": args.scenario, "point": args.point, "value": point,
+                           "label": args.label, "from_label": args.from_label, "start": start,
+                           "target": args.target, "cost_weight": args.cost_weight,
+                           **{k: v for k, v in found.items() if k != "values"},
+                           "found": found["values"]}  # fmt: skip
+    if found["values"] is None:
+        print(f"no set reached slack {args.target} in {found['evaluations']} evaluations; "
+              f"best {found['slack']:.3f} at {found['where']}")  # fmt: skip
+    else:
+        print(f"found slack {found['slack']:.3f} after {found['evaluations']} evaluations "
+              f"({found['search_s']:.0f} s): {found['values']}", flush=True)  # fmt: skip
+        report = problem.check(problem.space.make_params(found["values"]), limits,
+                               workers=args.workers)  # fmt: skip
+        rec.update(check_passed=bool(report.passed), check_failures=list(report.failures)[:6],
+                   check_s=float(report.elapsed_s))  # fmt: skip
+        print(f"check: {'passed' if report.passed else 'failed'} {list(report.failures)[:3]}")
+    with args.out.open("a") as f:
+        f.write(json.dumps(rec) + "\n")
+
+
+if __name__ == "__main__":
+    main()
