@@ -16,6 +16,8 @@ machine's default tasks:
     .venv/bin/python experiments/machine_centre_check.py --costs   # cost per move at zero
 
 ``--sets centre`` (the default) checks the centres of ``--version``'s ids;
+``--sets margins`` checks each centre moved into the check's margins at every point at once
+by a search on the check's linear analysis (``machine_margin_search.py``; no simulation);
 ``--sets oracle:<label>`` checks instead the robust set of ``schedule_oracle.py``'s run of that
 label (a candidate replacement); ``--sets detuned`` checks the centre with its loop gain
 scaled down (:data:`DETUNE_REGISTERS` times each of :data:`DETUNE_SCALES` in turn, the
@@ -121,7 +123,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ids", default=None, help="comma-separated env ids (default: every one)")
     ap.add_argument("--version", type=int, default=1, help="the ids' version (default: 1)")
-    ap.add_argument("--sets", default="centre", help="centre, detuned or oracle:<label>")
+    ap.add_argument("--sets", default="centre", help="centre, detuned, margins or oracle:<label>")
     ap.add_argument("--points", type=int, default=3, help="operating points (>= 2)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--oracle", type=Path, default=RESULTS / "oracle.jsonl")
@@ -140,9 +142,9 @@ def main() -> None:
         return
     if args.points < 2:
         raise SystemExit(f"--points must be >= 2; got --points {args.points}.")
-    if args.sets not in ("centre", "detuned") and not args.sets.startswith("oracle:"):
+    if args.sets not in ("centre", "detuned", "margins") and not args.sets.startswith("oracle:"):
         raise SystemExit(
-            f"--sets must be centre, detuned or oracle:<label>; got --sets {args.sets}."
+            f"--sets must be centre, detuned, margins or oracle:<label>; got --sets {args.sets}."
         )
     ids = args.ids.split(",") if args.ids else machine_ids(args.version)
     done: dict[tuple, dict[str, Any]] = {}
@@ -168,6 +170,24 @@ def main() -> None:
             else:
                 print(f"{eid}: no scale down to {DETUNE_SCALES[-1]} passes", flush=True)
             continue
+        if args.sets == "margins":
+            prev = [done.get((eid, "margins", args.points, i)) for i in range(len(points))]
+            if all(prev):
+                continue
+            values = next((p["values"] for p in prev if p), None)
+            extra: dict[str, Any] = {}
+            if values is None:
+                moved = margins_centre(s, points, args.workers)
+                extra = {"margin_search": {k: w for k, w in moved.items() if k != "values"}}
+                print(f"{eid}: margin search from the centre: slack {moved['start_slack']:.3g} "
+                      f"-> {moved['slack']:.3g} ({moved['evaluations']} evaluations, "
+                      f"{moved['search_s']:.0f} s)", flush=True)  # fmt: skip
+                values = moved["values"]
+                if values is None:
+                    continue
+            for i, v in enumerate(points):
+                _run(args, done, eid, s, "margins", values, i, v, extra)
+            continue
         if args.sets == "centre":
             values = so.machine_center(s)
         else:
@@ -176,15 +196,30 @@ def main() -> None:
             _run(args, done, eid, s, args.sets, values, i, v)
 
 
+def margins_centre(s, points: list[float], workers: int) -> dict[str, Any]:
+    """The id's centre moved into the check's margins at every one of ``points`` at once
+    (``machine_margin_search.move_into_margins`` on the check's linear analysis)."""
+    from machine_margin_search import move_into_margins
+
+    from servogym.autotune._tuners import DEFAULT_TUNER
+
+    args = argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=workers, robust=1,
+                              check_candidates=1)  # fmt: skip
+    config = so._config(s, args, points[0])
+    plants = [{s.param: float(p)} for p in points]
+    return move_into_margins(config.problem(), config.check_limits(), so.machine_center(s),
+                             plants=plants)  # fmt: skip
+
+
 def _run(args, done: dict, eid: str, s, label: str, values: dict[str, int], i: int,
-         v: float) -> bool:  # fmt: skip
+         v: float, extra: dict[str, Any] | None = None) -> bool:  # fmt: skip
     """Check ``values`` at point ``i`` unless a line has it; append the line; passed?"""
     key = (eid, label, args.points, i)
     if key in done:
         return done[key]["passed"]
     t0 = time.perf_counter()
     rec = {"env_id": eid, "sets": label, "points": args.points, "point": i, s.param: v,
-           "values": values, **check_at(s, values, v, args.workers)}  # fmt: skip
+           "values": values, **(extra or {}), **check_at(s, values, v, args.workers)}  # fmt: skip
     rec["wall_s"] = time.perf_counter() - t0
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("a") as f:

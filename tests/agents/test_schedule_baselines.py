@@ -302,3 +302,32 @@ def test_the_chain_starts_where_the_set_is_feasible_then_cheapest(oracle_script,
     assert probes == [["1", 5.0, False], ["centre", 9.0, True], ["c2", 7.0, True]]
     name, _, _ = oracle_script.pick_start(s, args, None, cands[:1])
     assert name == "1"  # the only one, infeasible
+
+
+@pytest.fixture(scope="module")
+def margin_script(oracle_script):
+    path = _SCRIPT.parent / "machine_margin_search.py"
+    spec = importlib.util.spec_from_file_location("machine_margin_search", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_margin_search_reproduces_its_recorded_slacks(margin_script, oracle_script):
+    """The committed search (margin_search.jsonl): the start's slack recomputed is the
+    recorded one, and the set found (which passed the full check) has the slack recorded,
+    at least the target, so the search returns it unchanged after one evaluation."""
+    path = _SCRIPT.parent / "results" / "schedule" / "margin_search.jsonl"
+    rec = next(r for r in map(json.loads, path.read_text().splitlines()) if r.get("check_passed"))
+    s = oracle_script.get_any_scenario(rec["scenario"])
+    args = type("A", (), dict(budget=1, tuner="safe", seed=0, workers=1, robust=1,
+                              check_candidates=1))()  # fmt: skip
+    config = oracle_script._config(s, args, rec["value"])
+    problem, limits = config.problem(), config.check_limits()
+    out = margin_script.move_into_margins(problem, limits, rec["found"], target=rec["target"])
+    assert out["values"] == rec["found"] and out["evaluations"] == 1
+    assert out["slack"] == pytest.approx(rec["slack"], rel=1e-6) and out["slack"] >= rec["target"]
+    lin = margin_script.LinearCheck(problem, limits, problem.space.make_params(rec["start"]).sets)
+    slack, where = lin.slack(problem.space.make_params(rec["start"]).sets)
+    assert slack == pytest.approx(rec["start_slack"], rel=1e-6) and where == rec["start_where"]
+    assert slack < 0  # the start failed the margins: the search moved it
