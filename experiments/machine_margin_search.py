@@ -209,6 +209,23 @@ def main() -> None:
     config = so._config(s, ns, point)
     problem = config.problem()
     limits = config.check_limits()
+    earlier = (
+        [json.loads(x) for x in args.out.read_text().splitlines()] if args.out.exists() else []
+    )
+    rec = next((r for r in earlier if r["label"] == args.label and r["scenario"] == args.scenario
+                and r["point"] == args.point), None)  # fmt: skip
+    if rec is None:
+        rec = search_and_check(args, problem, limits, start, point)
+        with args.out.open("a") as f:
+            f.write(json.dumps(rec) + "\n")
+    else:
+        print(f"{args.label}: the search is in {args.out}; not run again")
+    if rec.get("check_passed"):
+        record_for_oracle(args, s, ns, rec)
+
+
+def search_and_check(args, problem, limits, start: dict[str, int], point: float) -> dict:
+    """Search from ``start``; the full check of the set found."""
     found = move_into_margins(problem, limits, start, target=args.target,
                               cost_weight=args.cost_weight, max_evals=args.max_evals)  # fmt: skip
     print(f"start: slack {found['start_slack']:.3f} at {found['start_where']}")
@@ -220,16 +237,35 @@ def main() -> None:
     if found["values"] is None:
         print(f"no set reached slack {args.target} in {found['evaluations']} evaluations; "
               f"best {found['slack']:.3f} at {found['where']}")  # fmt: skip
-    else:
-        print(f"found slack {found['slack']:.3f} after {found['evaluations']} evaluations "
-              f"({found['search_s']:.0f} s): {found['values']}", flush=True)  # fmt: skip
-        report = problem.check(problem.space.make_params(found["values"]), limits,
-                               workers=args.workers)  # fmt: skip
-        rec.update(check_passed=bool(report.passed), check_failures=list(report.failures)[:6],
-                   check_s=float(report.elapsed_s))  # fmt: skip
-        print(f"check: {'passed' if report.passed else 'failed'} {list(report.failures)[:3]}")
-    with args.out.open("a") as f:
-        f.write(json.dumps(rec) + "\n")
+        return rec
+    print(f"found slack {found['slack']:.3f} after {found['evaluations']} evaluations "
+          f"({found['search_s']:.0f} s): {found['values']}", flush=True)  # fmt: skip
+    report = problem.check(problem.space.make_params(found["values"]), limits,
+                           workers=args.workers)  # fmt: skip
+    rec.update(check_passed=bool(report.passed), check_failures=list(report.failures)[:6],
+               check_s=float(report.elapsed_s))  # fmt: skip
+    print(f"check: {'passed' if report.passed else 'failed'} {list(report.failures)[:3]}")
+    return rec
+
+
+def record_for_oracle(args, s, ns, rec: dict[str, Any]) -> None:
+    """Append the checked set found to the oracle study's records (``schedule_oracle.py``'s
+    format, tuner ``margin-search``, with its cross-evaluation at every point), so that
+    ``schedule_oracle.py --pooled`` counts it among the checked sets known."""
+    path = RESULTS / "oracle.jsonl"
+    key = ("set", args.scenario, str(args.point), None, args.label, args.points)
+    if key in so._done(path):
+        return
+    points = s.operating_points(args.points)
+    out = {"kind": "set", "point": args.point, "scenario": args.scenario, "budget": None,
+           "label": args.label, "points": args.points, "value": rec["value"],
+           "tuner": "margin-search", "values": rec["found"], "feasible": None,
+           "check_passed": True, "check_failures": [], "warm_start": rec["from_label"],
+           "margin_start": {k: rec.get(k) for k in ("start_slack", "slack", "where",
+                                                "evaluations", "search_s")},
+           "cross": so.cross_costs(s, rec["found"], points, ns)}  # fmt: skip
+    so._append(path, out)
+    print(f"recorded in {path}: cross {[round(c, 3) for c in out['cross']]}")
 
 
 if __name__ == "__main__":

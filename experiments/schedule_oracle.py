@@ -88,6 +88,11 @@ def _parse() -> argparse.Namespace:
         "on the check's linear analysis (experiments/machine_margin_search.py): the safe "
         "tuner cannot leave an infeasible start",
     )  # fmt: skip
+    ap.add_argument(
+        "--pooled", action="store_true",
+        help="tune nothing: summarise every checked set of every label at these points (the "
+        "best known at each point against the best fixed one; label 'pooled')",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, default=RESULTS / "oracle.jsonl")
     args = ap.parse_args()
     if args.tuner is None:
@@ -422,6 +427,44 @@ def summarize(records: list[dict[str, Any]], s, points: list[float], label: str,
     }
 
 
+def summarize_pooled(records: list[dict[str, Any]], s,
+                     points: list[float]) -> dict[str, Any] | None:  # fmt: skip
+    """The oracle gap from every checked set known for the scenario at these points, of any
+    label (run) or tuner: at each point the cheapest of them there (each set's cost at every
+    point is its cross-evaluation), against the one fixed set with the lowest mean; the
+    issue's "best set known at each payload". ``None`` when some point has no checked set
+    tuned for it (then its oracle would be another point's set)."""
+    pool = {f"{r['label']}:{r['point']}": r for r in records
+            if r["kind"] == "set" and r["scenario"] == s.name and r["points"] == len(points)
+            and r["check_passed"] and r.get("cross")}  # fmt: skip
+    own = {str(r["point"]) for r in pool.values()}
+    if any(str(i) not in own for i in range(len(points))) or not pool:
+        return None
+    oracle_from = [min(pool, key=lambda n, i=i: pool[n]["cross"][i]) for i in range(len(points))]
+    oracle = [pool[n]["cross"][i] for i, n in enumerate(oracle_from)]
+    means = {n: float(np.mean(r["cross"])) for n, r in pool.items()}
+    best = min(means, key=means.get)
+    best_cross = pool[best]["cross"]
+    return {
+        "scenario": s.name,
+        "env_id": _scenario_id(s),
+        "label": "pooled",
+        "budget": None,
+        "param": s.param,
+        "points": points,
+        "pool": sorted(pool),
+        "oracle_from": oracle_from,
+        "oracle_costs": oracle,
+        "oracle_mean_cost": float(np.mean(oracle)),
+        "best_fixed": best,
+        "best_fixed_costs": best_cross,
+        "best_fixed_mean_cost": means[best],
+        "best_fixed_checked": True,
+        "oracle_gap": means[best] / float(np.mean(oracle)),
+        "oracle_gap_worst_point": max(b / o for b, o in zip(best_cross, oracle, strict=True)),
+    }
+
+
 def main() -> None:
     args = _parse()
     from servogym.envs._scenarios import SCENARIOS
@@ -436,6 +479,8 @@ def main() -> None:
         base = {"scenario": s.name, "budget": args.budget, "label": args.label,
                 "points": args.points}  # fmt: skip
         todo = [("robust", None)] if args.robust_only else [*enumerate(points), ("robust", None)]
+        if args.pooled:
+            todo = []  # no tuning: the summary of what the runs found
         for i, v in todo:
             rec = {"kind": "set", "point": i, **base}
             prev = done.get(_key(rec))
@@ -472,6 +517,40 @@ def main() -> None:
                   f"{'passed' if rec['check_passed'] else 'FAILED'}, cross "
                   f"{[round(c, 3) for c in rec['cross']]} ({rec['elapsed_s']:.0f} s)",
                   flush=True)  # fmt: skip
+        if args.pooled:
+            summary = summarize_pooled(list(done.values()), s, points)
+            if summary is None:
+                print(f"{s.name}: no checked set at some point; nothing pooled", flush=True)
+                continue
+            ep = {"kind": "episodes", "point": "pooled", "scenario": s.name, "budget": None,
+                  "label": "pooled", "points": args.points, "pool": summary["pool"]}  # fmt: skip
+            old = next((r for k, r in done.items() if r["kind"] == "episodes"
+                        and r["point"] == "pooled" and r["scenario"] == s.name
+                        and r.get("pool") == summary["pool"]), None)  # fmt: skip
+            if old is None:
+                pool = {n: r for n in summary["pool"] for r in done.values()
+                        if r["kind"] == "set" and f"{r['label']}:{r['point']}" == n}  # fmt: skip
+                table = [(points[i], pool[n]["values"]) for i, n in
+                         enumerate(summary["oracle_from"])]  # fmt: skip
+                policies = {"best_fixed": pool[summary["best_fixed"]]["values"],
+                            "gain_table": table}  # fmt: skip
+                ep["results"] = episodes(s, policies, args.episodes, args.seed)
+                _append(args.out, ep)
+                done[_key(ep)] = ep
+                old = ep
+            summary["episodes"] = old["results"]
+            summary["command"] = (
+                f"nice -n 10 .venv/bin/python experiments/schedule_oracle.py --scenarios "
+                f"{s.name} --points {args.points} --episodes {args.episodes} --seed "
+                f"{args.seed} --pooled"
+            )
+            summaries.append(summary)
+            print(f"{s.name}: pooled oracle gap {summary['oracle_gap']:.3g} (best fixed "
+                  f"{summary['best_fixed']} {summary['best_fixed_mean_cost']:.4g} / oracle "
+                  f"{summary['oracle_mean_cost']:.4g} from {summary['oracle_from']}); episodes "
+                  f"{ {k: round(v['mean_cost'], 4) for k, v in summary['episodes'].items()} }",
+                  flush=True)  # fmt: skip
+            continue
         summary = summarize(list(done.values()), s, points, args.label, args.budget)
         if summary is None:
             continue

@@ -331,3 +331,28 @@ def test_the_margin_search_reproduces_its_recorded_slacks(margin_script, oracle_
     slack, where = lin.slack(problem.space.make_params(rec["start"]).sets)
     assert slack == pytest.approx(rec["start_slack"], rel=1e-6) and where == rec["start_where"]
     assert slack < 0  # the start failed the margins: the search moved it
+
+
+def test_the_pooled_oracle_takes_the_cheapest_checked_set_at_each_point(oracle_script):
+    s = oracle_script.get_any_scenario("TwoLinkArm")
+    points = s.operating_points(3)
+
+    def rec(label, point, cross, passed=True):
+        return {"kind": "set", "scenario": "TwoLinkArm", "points": 3, "label": label,
+                "point": point, "cross": cross, "check_passed": passed}  # fmt: skip
+
+    records = [
+        rec("a", 0, [1.0, 3.0, 9.0]),
+        rec("a", 1, [2.0, 2.0, 9.0]),
+        rec("a", 2, [0.1, 0.1, 0.1], passed=False),  # unchecked: never the oracle
+        rec("b", "robust", [4.0, 4.0, 4.0]),
+    ]
+    assert oracle_script.summarize_pooled(records, s, points) is None  # no checked 2 kg set
+    records.append(rec("c", 2, [5.0, 5.0, 6.0]))
+    out = oracle_script.summarize_pooled(records, s, points)
+    assert out["oracle_from"] == ["a:0", "a:1", "b:robust"]
+    assert out["oracle_costs"] == [1.0, 2.0, 4.0]
+    assert out["best_fixed"] == "b:robust" and out["best_fixed_mean_cost"] == 4.0
+    assert out["oracle_gap"] == pytest.approx(4.0 / (7.0 / 3))
+    assert out["oracle_gap_worst_point"] == pytest.approx(4.0)
+    assert "a:2" not in out["pool"]
