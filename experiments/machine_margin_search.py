@@ -2,18 +2,19 @@
 
 The safe tuner cannot leave an infeasible start (``schedule_oracle.py --chain`` found no
 feasible trial in 3 x 150 on the two-link arm at 2 kg, from the 0.32 kg set). This script
-searches the loop gains of a set (``kp``, ``ki``, ``kd``, ``kout`` of every axis, in log
-steps; the feed-forward and limits are kept) for the margins the multi-axis check asks, on
-the check's own linear analysis (``servogym.sim._multicheck``): every plant of its stress
-set (the machine as given, the load and the frictions at -+20 / -+50 %), every
-loop-latency x sequencing choice on the machine as given, every operating configuration of
-the tasks, as the check analyses them. No task is
-simulated in the search, so a candidate takes milliseconds to a second instead of the
-check's minutes. The objective is the worst slack, ``min(GM - 6 dB, (PM - 30 deg) / 5)``
-over every loop and case (an unstable machine: minus its spectral radius's excess, minus
-10), plus ``--cost-weight`` times the log of the loop gain given up (so that, of two sets
-with the margins, the search keeps the stiffer); scipy's Nelder-Mead from the given set,
-until the slack reaches ``--target`` dB. The set found then goes through the full check.
+searches the loop gains of a set (:data:`GAINS`, every axis's, in log steps; the
+feed-forward and the limits are kept) for the margins the multi-axis check asks, on the
+check's own linear analysis (``servogym.sim._multicheck``): every plant of its stress set
+(the machine as given, the load and the frictions at -+20 / -+50 %), every loop-latency x
+sequencing choice on the machine as given, every operating configuration of the tasks, as
+the check analyses them. No task is simulated in the search, so a candidate takes about a
+second instead of the check's minutes. The objective is the worst slack,
+``min(GM - 6 dB, (PM - 30 deg) / 5)`` over every loop and case (an unstable machine: minus
+its spectral radius's excess, minus 10), plus ``--cost-weight`` times the log of the loop
+gain given up (so that, of two sets with the margins, the search keeps the stiffer);
+scipy's Nelder-Mead from the given set, until the slack reaches ``--target`` dB. The
+following error and the saturation are not in the search (they need the tasks run): the
+set found then goes through the full check.
 
     .venv/bin/python experiments/machine_margin_search.py \\
         --scenario TwoLinkArm --point 2 --from-label chain-150 --label margin-2kg
@@ -41,8 +42,13 @@ if str(Path(__file__).parent) not in sys.path:
 import schedule_oracle as so
 
 RESULTS = Path(__file__).parent / "results" / "schedule"
-GAINS = ("kp", "ki", "kd", "kout")
-"""The registers the search moves (every axis's), in log steps."""
+GAINS: dict[str, tuple[str, ...]] = {
+    "pmd": ("kp", "ki", "kd", "kout"),
+    "pmac": ("proportional_gain", "derivative_gain", "integral_gain"),
+    "parker6k": ("sgp", "sgi", "sgv"),
+}
+"""Per chip family, the registers the search moves (every axis's), in log steps: the feedback
+gains (PMD's with Kout); the feed-forward and the limits are kept."""
 
 
 class LinearCheck:
@@ -124,8 +130,11 @@ def move_into_margins(
     ``slack`` is the best reached)."""
     import scipy.optimize
 
+    from servogym.chips._family import get_chip
+
     space = problem.space
-    names = [n for n in start if n.split(".")[0] in GAINS]
+    gains = GAINS[get_chip(space.chip_model)[0].name]
+    names = [n for n in start if n.split(".")[0] in gains]
     x0 = np.log([max(start[n], 1) for n in names])
 
     def values_of(x: np.ndarray) -> dict[str, int]:
