@@ -19,10 +19,11 @@ machine's default tasks:
 ``--sets margins`` checks each centre moved into the check's margins at every point at once
 by a search on the check's linear analysis (``machine_margin_search.py``; no simulation);
 ``--sets oracle:<label>`` checks instead the robust set of ``schedule_oracle.py``'s run of that
-label (a candidate replacement); ``--sets detuned`` checks the centre with its loop gain
-scaled down (:data:`DETUNE_REGISTERS` times each of :data:`DETUNE_SCALES` in turn, the
-heaviest point first) until a scale passes at every point: what an engineer does with a set
-that rings, and a candidate replacement that needs no tuning.
+label (a candidate replacement; ``oracle:<label>:<point>``: the set tuned for that point);
+``--sets detuned`` checks the centre with its loop gain scaled down
+(:data:`DETUNE_REGISTERS` times each of :data:`DETUNE_SCALES` in turn, the heaviest point
+first) until a scale passes at every point: what an engineer does with a set that rings,
+and a candidate replacement that needs no tuning.
 
 Resumable: one JSON line per (id, set, point) in ``--out``
 (``experiments/results/schedule/machine_centre_checks.jsonl``); a re-run skips what is there.
@@ -82,12 +83,15 @@ def detuned(values: dict[str, int], family: str, scale: float) -> dict[str, int]
 
 
 def oracle_set(scenario: str, label: str, path: Path) -> dict[str, int]:
-    """The robust set of ``schedule_oracle.py``'s run ``label`` on ``scenario``."""
+    """The set of ``schedule_oracle.py``'s run ``label`` on ``scenario``: its robust one, or
+    with ``label`` ``<label>:<point>`` the set tuned for that point."""
+    label, _, point = label.partition(":")
+    point = point or "robust"
     recs = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
     found = [r for r in recs if r["kind"] == "set" and r["scenario"] == scenario
-             and r["label"] == label and r["point"] == "robust"]  # fmt: skip
+             and r["label"] == label and str(r["point"]) == point]  # fmt: skip
     if not found:
-        raise SystemExit(f"no robust set of label {label!r} for {scenario} in {path}")
+        raise SystemExit(f"no set {point!r} of label {label!r} for {scenario} in {path}")
     return {k: int(v) for k, v in found[-1]["values"].items()}
 
 

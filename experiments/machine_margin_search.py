@@ -17,7 +17,7 @@ following error and the saturation are not in the search (they need the tasks ru
 set found then goes through the full check.
 
     .venv/bin/python experiments/machine_margin_search.py \\
-        --scenario TwoLinkArm --point 2 --from-label chain-150 --label margin-2kg
+        --scenario TwoLinkArm --point 2 --from-label chain-150 --label margin-search
 
 Appends one JSON line to ``experiments/results/schedule/margin_search.jsonl``: the start and
 found values, their slack, the search's evaluations, and the check's verdict.
