@@ -17,7 +17,8 @@ machine's default tasks:
 
 ``--sets centre`` (the default) checks the centres of ``--version``'s ids;
 ``--sets margins`` checks each centre moved into the check's margins at every point at once
-by a search on the check's linear analysis (``machine_margin_search.py``; no simulation);
+by a search on the check's linear analysis (``machine_margin_search.py``; no simulation;
+``margins:oracle:<label>:<point>`` starts from that oracle set instead);
 ``--sets oracle:<label>`` checks instead the robust set of ``schedule_oracle.py``'s run of that
 label (a candidate replacement; ``oracle:<label>:<point>``: the set tuned for that point);
 ``--sets detuned`` checks the centre with its loop gain scaled down
@@ -127,7 +128,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ids", default=None, help="comma-separated env ids (default: every one)")
     ap.add_argument("--version", type=int, default=1, help="the ids' version (default: 1)")
-    ap.add_argument("--sets", default="centre", help="centre, detuned, margins or oracle:<label>")
+    ap.add_argument(
+        "--sets", default="centre",
+        help="centre, detuned, margins, margins:oracle:<label>:<point> or oracle:<label>",
+    )  # fmt: skip
     ap.add_argument("--points", type=int, default=3, help="operating points (>= 2)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--oracle", type=Path, default=RESULTS / "oracle.jsonl")
@@ -146,9 +150,12 @@ def main() -> None:
         return
     if args.points < 2:
         raise SystemExit(f"--points must be >= 2; got --points {args.points}.")
-    if args.sets not in ("centre", "detuned", "margins") and not args.sets.startswith("oracle:"):
+    if args.sets not in ("centre", "detuned", "margins") and not args.sets.startswith(
+        ("oracle:", "margins:oracle:")
+    ):
         raise SystemExit(
-            f"--sets must be centre, detuned, margins or oracle:<label>; got --sets {args.sets}."
+            f"--sets must be centre, detuned, margins, margins:oracle:<label>:<point> or "
+            f"oracle:<label>[:<point>]; got --sets {args.sets}."
         )
     ids = args.ids.split(",") if args.ids else machine_ids(args.version)
     done: dict[tuple, dict[str, Any]] = {}
@@ -174,23 +181,28 @@ def main() -> None:
             else:
                 print(f"{eid}: no scale down to {DETUNE_SCALES[-1]} passes", flush=True)
             continue
-        if args.sets == "margins":
-            prev = [done.get((eid, "margins", args.points, i)) for i in range(len(points))]
+        if args.sets.startswith("margins"):
+            label = args.sets
+            prev = [done.get((eid, label, args.points, i)) for i in range(len(points))]
             if all(prev):
                 continue
             values = next((p["values"] for p in prev if p), None)
             extra: dict[str, Any] = {}
             if values is None:
-                moved = margins_centre(s, points, args.workers)
+                start = (
+                    so.machine_center(s) if label == "margins"
+                    else oracle_set(s.name, label.split(":", 2)[2], args.oracle)
+                )  # fmt: skip
+                moved = margins_centre(s, points, args.workers, start)
                 extra = {"margin_search": {k: w for k, w in moved.items() if k != "values"}}
-                print(f"{eid}: margin search from the centre: slack {moved['start_slack']:.3g} "
+                print(f"{eid}: margin search from {label}: slack {moved['start_slack']:.3g} "
                       f"-> {moved['slack']:.3g} ({moved['evaluations']} evaluations, "
                       f"{moved['search_s']:.0f} s)", flush=True)  # fmt: skip
                 values = moved["values"]
                 if values is None:
                     continue
             for i, v in enumerate(points):
-                _run(args, done, eid, s, "margins", values, i, v, extra)
+                _run(args, done, eid, s, label, values, i, v, extra)
             continue
         if args.sets == "centre":
             values = so.machine_center(s)
@@ -200,9 +212,10 @@ def main() -> None:
             _run(args, done, eid, s, args.sets, values, i, v)
 
 
-def margins_centre(s, points: list[float], workers: int) -> dict[str, Any]:
-    """The id's centre moved into the check's margins at every one of ``points`` at once
-    (``machine_margin_search.move_into_margins`` on the check's linear analysis)."""
+def margins_centre(s, points: list[float], workers: int, start: dict[str, int]) -> dict[str, Any]:
+    """``start`` (the id's centre, or an oracle set) moved into the check's margins at every
+    one of ``points`` at once (``machine_margin_search.move_into_margins`` on the check's
+    linear analysis)."""
     from machine_margin_search import move_into_margins
 
     from servogym.autotune._tuners import DEFAULT_TUNER
@@ -211,7 +224,7 @@ def margins_centre(s, points: list[float], workers: int) -> dict[str, Any]:
                               check_candidates=1)  # fmt: skip
     config = so._config(s, args, points[0])
     plants = [{s.param: float(p)} for p in points]
-    return move_into_margins(config.problem(), config.check_limits(), so.machine_center(s),
+    return move_into_margins(config.problem(), config.check_limits(), start,
                              plants=plants)  # fmt: skip
 
 
