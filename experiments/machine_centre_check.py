@@ -184,8 +184,6 @@ def main() -> None:
         if args.sets.startswith("margins"):
             label = args.sets
             prev = [done.get((eid, label, args.points, i)) for i in range(len(points))]
-            if all(prev):
-                continue
             values = next((p["values"] for p in prev if p), None)
             extra: dict[str, Any] = {}
             if values is None:
@@ -201,8 +199,10 @@ def main() -> None:
                 values = moved["values"]
                 if values is None:
                     continue
-            for i, v in enumerate(points):
-                _run(args, done, eid, s, label, values, i, v, extra)
+            passed = [_run(args, done, eid, s, label, values, i, v, extra)
+                      for i, v in enumerate(points)]  # fmt: skip
+            if all(passed) and eid == so._scenario_id(so.get_any_scenario(s.name)):
+                record_for_oracle(s, label, values, points, args)
             continue
         if args.sets == "centre":
             values = so.machine_center(s)
@@ -210,6 +210,26 @@ def main() -> None:
             values = oracle_set(s.name, args.sets.split(":", 1)[1], args.oracle)
         for i, v in enumerate(points):
             _run(args, done, eid, s, args.sets, values, i, v)
+
+
+def record_for_oracle(s, label: str, values: dict[str, int], points: list[float], args) -> None:
+    """A set that passed the check at every point of the cycle, in the oracle study's records
+    (``schedule_oracle.py``'s format, point ``cycle``, with its cross-evaluation), so that
+    ``schedule_oracle.py --pooled`` counts it among the checked sets known."""
+    key = ("set", s.name, "cycle", None, label, len(points))
+    if key in so._done(args.oracle):
+        return
+    from servogym.autotune._tuners import DEFAULT_TUNER
+
+    ns = argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=args.workers,
+                            robust=1, check_candidates=1)  # fmt: skip
+    rec = {"kind": "set", "point": "cycle", "scenario": s.name, "budget": None, "label": label,
+           "points": len(points), "value": None, "tuner": "margin-search", "values": values,
+           "feasible": None, "check_passed": True, "check_failures": [],
+           "checked_at": [float(p) for p in points],
+           "cross": so.cross_costs(s, values, points, ns)}  # fmt: skip
+    so._append(args.oracle, rec)
+    print(f"recorded in {args.oracle}: cross {[round(c, 3) for c in rec['cross']]}", flush=True)
 
 
 def margins_centre(s, points: list[float], workers: int, start: dict[str, int]) -> dict[str, Any]:
