@@ -427,13 +427,38 @@ def summarize(records: list[dict[str, Any]], s, points: list[float], label: str,
     }
 
 
-def summarize_pooled(records: list[dict[str, Any]], s,
-                     points: list[float]) -> dict[str, Any] | None:  # fmt: skip
+def checked_everywhere(s, n_points: int) -> set[str]:
+    """Pool names (``<label>:<point>``) of the oracle sets that passed the check at every one
+    of ``n_points`` points (``machine_centre_check.py --sets oracle:<label>:<point>``'s lines
+    for the scenario's id)."""
+    path = RESULTS / "machine_centre_checks.jsonl"
+    if not path.exists():
+        return set()
+    by: dict[str, dict[int, bool]] = {}
+    for line in path.read_text().splitlines():
+        try:
+            r = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if (r["env_id"] != _scenario_id(s) or r["points"] != n_points
+                or not r["sets"].startswith("oracle:")):  # fmt: skip
+            continue
+        name = r["sets"].split(":", 1)[1]
+        name = name if ":" in name else f"{name}:robust"
+        by.setdefault(name, {})[r["point"]] = bool(r["passed"])
+    return {n for n, d in by.items() if len(d) == n_points and all(d.values())}
+
+
+def summarize_pooled(records: list[dict[str, Any]], s, points: list[float],
+                     everywhere: set[str] | None = None) -> dict[str, Any] | None:  # fmt: skip
     """The oracle gap from every checked set known for the scenario at these points, of any
     label (run) or tuner: at each point the cheapest of them there (each set's cost at every
-    point is its cross-evaluation), against the one fixed set with the lowest mean; the
-    issue's "best set known at each payload". ``None`` when some point has no checked set
-    tuned for it (then its oracle would be another point's set)."""
+    point is its cross-evaluation), against the fixed set with the lowest mean of those that
+    passed the check at every point (``everywhere``: pool names ``<label>:<point>``, and
+    every set whose record says ``checked_at`` all the points; a fixed set runs at every
+    payload, so a check at its own point is not enough); the issue's "best set known at each
+    payload". ``None`` when some point has no checked set tuned for it (then its oracle would
+    be another point's set) or no set passed everywhere."""
     pool = {f"{r['label']}:{r['point']}": r for r in records
             if r["kind"] == "set" and r["scenario"] == s.name and r["points"] == len(points)
             and r["check_passed"] and r.get("cross")}  # fmt: skip
@@ -443,8 +468,14 @@ def summarize_pooled(records: list[dict[str, Any]], s,
     oracle_from = [min(pool, key=lambda n, i=i: pool[n]["cross"][i]) for i in range(len(points))]
     oracle = [pool[n]["cross"][i] for i, n in enumerate(oracle_from)]
     means = {n: float(np.mean(r["cross"])) for n, r in pool.items()}
-    best = min(means, key=means.get)
+    fixed = {n for n, r in pool.items()
+             if n in (everywhere or set())
+             or sorted(r.get("checked_at") or []) == sorted(map(float, points))}  # fmt: skip
+    if not fixed:
+        return None
+    best = min(fixed, key=means.get)
     best_cross = pool[best]["cross"]
+    cheapest = min(means, key=means.get)
     return {
         "scenario": s.name,
         "env_id": _scenario_id(s),
@@ -460,6 +491,9 @@ def summarize_pooled(records: list[dict[str, Any]], s,
         "best_fixed_costs": best_cross,
         "best_fixed_mean_cost": means[best],
         "best_fixed_checked": True,
+        "checked_everywhere": sorted(fixed),
+        "cheapest_fixed_own_point_only": cheapest,
+        "cheapest_fixed_own_point_only_mean_cost": means[cheapest],
         "oracle_gap": means[best] / float(np.mean(oracle)),
         "oracle_gap_worst_point": max(b / o for b, o in zip(best_cross, oracle, strict=True)),
     }
@@ -518,7 +552,8 @@ def main() -> None:
                   f"{[round(c, 3) for c in rec['cross']]} ({rec['elapsed_s']:.0f} s)",
                   flush=True)  # fmt: skip
         if args.pooled:
-            summary = summarize_pooled(list(done.values()), s, points)
+            summary = summarize_pooled(list(done.values()), s, points,
+                                       checked_everywhere(s, len(points)))  # fmt: skip
             if summary is None:
                 print(f"{s.name}: no checked set at some point; nothing pooled", flush=True)
                 continue

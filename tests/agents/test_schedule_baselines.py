@@ -337,22 +337,27 @@ def test_the_pooled_oracle_takes_the_cheapest_checked_set_at_each_point(oracle_s
     s = oracle_script.get_any_scenario("TwoLinkArm")
     points = s.operating_points(3)
 
-    def rec(label, point, cross, passed=True):
+    def rec(label, point, cross, passed=True, **kw):
         return {"kind": "set", "scenario": "TwoLinkArm", "points": 3, "label": label,
-                "point": point, "cross": cross, "check_passed": passed}  # fmt: skip
+                "point": point, "cross": cross, "check_passed": passed, **kw}  # fmt: skip
 
     records = [
         rec("a", 0, [1.0, 3.0, 9.0]),
         rec("a", 1, [2.0, 2.0, 9.0]),
         rec("a", 2, [0.1, 0.1, 0.1], passed=False),  # unchecked: never the oracle
-        rec("b", "robust", [4.0, 4.0, 4.0]),
+        rec("b", "robust", [3.5, 3.5, 3.5]),  # the cheapest fixed, checked at its point only
     ]
-    assert oracle_script.summarize_pooled(records, s, points) is None  # no checked 2 kg set
+    assert oracle_script.summarize_pooled(records, s, points, {"a:1"}) is None  # no 2 kg set
     records.append(rec("c", 2, [5.0, 5.0, 6.0]))
-    out = oracle_script.summarize_pooled(records, s, points)
+    # no set checked at every point: no best fixed set, so no gap
+    assert oracle_script.summarize_pooled(records, s, points) is None
+    records.append(rec("d", "cycle", [4.0, 4.0, 4.0], checked_at=list(points)))
+    out = oracle_script.summarize_pooled(records, s, points, {"a:1"})
     assert out["oracle_from"] == ["a:0", "a:1", "b:robust"]
-    assert out["oracle_costs"] == [1.0, 2.0, 4.0]
-    assert out["best_fixed"] == "b:robust" and out["best_fixed_mean_cost"] == 4.0
-    assert out["oracle_gap"] == pytest.approx(4.0 / (7.0 / 3))
+    assert out["oracle_costs"] == [1.0, 2.0, 3.5]
+    assert out["checked_everywhere"] == ["a:1", "d:cycle"]
+    assert out["best_fixed"] == "d:cycle" and out["best_fixed_mean_cost"] == 4.0
+    assert out["cheapest_fixed_own_point_only"] == "b:robust"
+    assert out["oracle_gap"] == pytest.approx(4.0 / (6.5 / 3))
     assert out["oracle_gap_worst_point"] == pytest.approx(4.0)
     assert "a:2" not in out["pool"]
