@@ -427,14 +427,13 @@ def summarize(records: list[dict[str, Any]], s, points: list[float], label: str,
     }
 
 
-def checked_everywhere(s, n_points: int) -> set[str]:
-    """Pool names (``<label>:<point>``) of the oracle sets that passed the check at every one
-    of ``n_points`` points (``machine_centre_check.py --sets oracle:<label>:<point>``'s lines
-    for the scenario's id)."""
+def checked_at_points(s, n_points: int) -> dict[str, set[int]]:
+    """Per oracle set (``<label>:<point>``), the points at which it passed the check in
+    ``machine_centre_check.py --sets oracle:<label>:<point>``'s lines for the scenario's id."""
     path = RESULTS / "machine_centre_checks.jsonl"
+    out: dict[str, set[int]] = {}
     if not path.exists():
-        return set()
-    by: dict[str, dict[int, bool]] = {}
+        return out
     for line in path.read_text().splitlines():
         try:
             r = json.loads(line)
@@ -445,37 +444,47 @@ def checked_everywhere(s, n_points: int) -> set[str]:
             continue
         name = r["sets"].split(":", 1)[1]
         name = name if ":" in name else f"{name}:robust"
-        by.setdefault(name, {})[r["point"]] = bool(r["passed"])
-    return {n for n, d in by.items() if len(d) == n_points and all(d.values())}
+        if r["passed"]:
+            out.setdefault(name, set()).add(int(r["point"]))
+    return out
 
 
-def summarize_pooled(records: list[dict[str, Any]], s, points: list[float],
-                     everywhere: set[str] | None = None) -> dict[str, Any] | None:  # fmt: skip
+def summarize_pooled(
+    records: list[dict[str, Any]], s, points: list[float], checked: dict | None = None
+) -> dict[str, Any] | None:
     """The oracle gap from every checked set known for the scenario at these points, of any
-    label (run) or tuner: at each point the cheapest of them there (each set's cost at every
-    point is its cross-evaluation), against the fixed set with the lowest mean of those that
-    passed the check at every point (``everywhere``: pool names ``<label>:<point>``, and
-    every set whose record says ``checked_at`` all the points; a fixed set runs at every
-    payload, so a check at its own point is not enough); the issue's "best set known at each
-    payload". ``None`` when some point has no checked set tuned for it (then its oracle would
-    be another point's set) or no set passed everywhere."""
+    label (run) or tuner (the issue's "best set known at each payload"). A set counts at a
+    point where it passed the check there: the point it was tuned for (its own check), the
+    points of ``checked`` (``<label>:<point>`` -> point indices, from
+    :func:`checked_at_points`) and those its record lists in ``checked_at``. The oracle at
+    each point is the cheapest set that counts there (each set's cost at every point is its
+    cross-evaluation); the best fixed set is the one of lowest mean among those that count at
+    every point (a fixed set runs at every payload). ``None`` when some point has no set
+    or no set counts everywhere."""
+    checked = checked or {}
+    n = len(points)
     pool = {f"{r['label']}:{r['point']}": r for r in records
-            if r["kind"] == "set" and r["scenario"] == s.name and r["points"] == len(points)
-            and r["check_passed"] and r.get("cross")}  # fmt: skip
-    own = {str(r["point"]) for r in pool.values()}
-    if any(str(i) not in own for i in range(len(points))) or not pool:
+            if r["kind"] == "set" and r["scenario"] == s.name and r["points"] == n
+            and r.get("cross")}  # fmt: skip
+    at: dict[str, set[int]] = {}
+    for name, r in pool.items():
+        ok = set(checked.get(name, set()))
+        if r["check_passed"] and str(r["point"]).isdigit():
+            ok.add(int(r["point"]))
+        ok |= {i for i, p in enumerate(points) if float(p) in map(float, r.get("checked_at") or [])}
+        if ok:
+            at[name] = ok
+    if any(not any(i in ok for ok in at.values()) for i in range(n)):
         return None
-    oracle_from = [min(pool, key=lambda n, i=i: pool[n]["cross"][i]) for i in range(len(points))]
-    oracle = [pool[n]["cross"][i] for i, n in enumerate(oracle_from)]
-    means = {n: float(np.mean(r["cross"])) for n, r in pool.items()}
-    fixed = {n for n, r in pool.items()
-             if n in (everywhere or set())
-             or sorted(r.get("checked_at") or []) == sorted(map(float, points))}  # fmt: skip
+    fixed = sorted(name for name, ok in at.items() if len(ok) == n)
     if not fixed:
         return None
+    oracle_from = [min((m for m in at if i in at[m]), key=lambda m, i=i: pool[m]["cross"][i])
+                   for i in range(n)]  # fmt: skip
+    oracle = [pool[m]["cross"][i] for i, m in enumerate(oracle_from)]
+    means = {m: float(np.mean(pool[m]["cross"])) for m in at}
     best = min(fixed, key=means.get)
     best_cross = pool[best]["cross"]
-    cheapest = min(means, key=means.get)
     return {
         "scenario": s.name,
         "env_id": _scenario_id(s),
@@ -483,7 +492,8 @@ def summarize_pooled(records: list[dict[str, Any]], s, points: list[float],
         "budget": None,
         "param": s.param,
         "points": points,
-        "pool": sorted(pool),
+        "pool": sorted(at),
+        "checked_at": {m: sorted(ok) for m, ok in sorted(at.items())},
         "oracle_from": oracle_from,
         "oracle_costs": oracle,
         "oracle_mean_cost": float(np.mean(oracle)),
@@ -491,9 +501,7 @@ def summarize_pooled(records: list[dict[str, Any]], s, points: list[float],
         "best_fixed_costs": best_cross,
         "best_fixed_mean_cost": means[best],
         "best_fixed_checked": True,
-        "checked_everywhere": sorted(fixed),
-        "cheapest_fixed_own_point_only": cheapest,
-        "cheapest_fixed_own_point_only_mean_cost": means[cheapest],
+        "checked_everywhere": fixed,
         "oracle_gap": means[best] / float(np.mean(oracle)),
         "oracle_gap_worst_point": max(b / o for b, o in zip(best_cross, oracle, strict=True)),
     }
@@ -553,7 +561,7 @@ def main() -> None:
                   flush=True)  # fmt: skip
         if args.pooled:
             summary = summarize_pooled(list(done.values()), s, points,
-                                       checked_everywhere(s, len(points)))  # fmt: skip
+                                       checked_at_points(s, len(points)))  # fmt: skip
             if summary is None:
                 print(f"{s.name}: no checked set at some point; nothing pooled", flush=True)
                 continue

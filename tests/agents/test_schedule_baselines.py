@@ -343,21 +343,21 @@ def test_the_pooled_oracle_takes_the_cheapest_checked_set_at_each_point(oracle_s
 
     records = [
         rec("a", 0, [1.0, 3.0, 9.0]),
-        rec("a", 1, [2.0, 2.0, 9.0]),
+        rec("a", 1, [0.5, 2.0, 9.0]),  # cheapest at 0.05 kg, but checked at 0.32 kg only
         rec("a", 2, [0.1, 0.1, 0.1], passed=False),  # unchecked: never the oracle
-        rec("b", "robust", [3.5, 3.5, 3.5]),  # the cheapest fixed, checked at its point only
+        rec("b", "robust", [3.5, 3.5, 3.5]),  # no point-wise check: counts nowhere
     ]
-    assert oracle_script.summarize_pooled(records, s, points, {"a:1"}) is None  # no 2 kg set
+    assert oracle_script.summarize_pooled(records, s, points) is None  # nothing at 2 kg
     records.append(rec("c", 2, [5.0, 5.0, 6.0]))
     # no set checked at every point: no best fixed set, so no gap
     assert oracle_script.summarize_pooled(records, s, points) is None
-    records.append(rec("d", "cycle", [4.0, 4.0, 4.0], checked_at=list(points)))
-    out = oracle_script.summarize_pooled(records, s, points, {"a:1"})
-    assert out["oracle_from"] == ["a:0", "a:1", "b:robust"]
-    assert out["oracle_costs"] == [1.0, 2.0, 3.5]
-    assert out["checked_everywhere"] == ["a:1", "d:cycle"]
-    assert out["best_fixed"] == "d:cycle" and out["best_fixed_mean_cost"] == 4.0
-    assert out["cheapest_fixed_own_point_only"] == "b:robust"
-    assert out["oracle_gap"] == pytest.approx(4.0 / (6.5 / 3))
+    records.append(rec("d", "cycle", [4.0, 4.5, 6.5], checked_at=list(points)))
+    out = oracle_script.summarize_pooled(records, s, points, {"a:1": {1, 2}, "b:robust": {0}})
+    assert out["oracle_from"] == ["a:0", "a:1", "c:2"]
+    assert out["oracle_costs"] == [1.0, 2.0, 6.0]
+    assert out["checked_everywhere"] == ["d:cycle"]  # a:1 failed at 0.05 kg
+    assert out["checked_at"]["a:1"] == [1, 2] and out["checked_at"]["b:robust"] == [0]
+    assert out["best_fixed"] == "d:cycle" and out["best_fixed_mean_cost"] == pytest.approx(5.0)
+    assert out["oracle_gap"] == pytest.approx(5.0 / 3.0)
     assert out["oracle_gap_worst_point"] == pytest.approx(4.0)
     assert "a:2" not in out["pool"]
