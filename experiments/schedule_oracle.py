@@ -89,6 +89,11 @@ def _parse() -> argparse.Namespace:
         "tuner cannot leave an infeasible start",
     )  # fmt: skip
     ap.add_argument(
+        "--start-from", default=None, metavar="LABEL:POINT",
+        help="with --chain on a machine, also probe this recorded set as a warm start "
+        "(e.g. margins:oracle:margin-search:2:cycle, the set checked at every point)",
+    )  # fmt: skip
+    ap.add_argument(
         "--pooled", action="store_true",
         help="tune nothing: summarise every checked set of every label at these points (the "
         "best known at each point against the best fixed one; label 'pooled')",
@@ -305,6 +310,16 @@ def pick_start(
         probes.append([name, float(trial.values[0]), bool(is_feasible(trial))])
     best = min(range(len(probes)), key=lambda k: (not probes[k][2], probes[k][1]))
     return candidates[best][0], candidates[best][1], probes
+
+
+def recorded_set(done: dict[tuple, dict[str, Any]], s, name: str) -> dict[str, int]:
+    """The values of the recorded set ``<label>:<point>`` of scenario ``s`` (the last one)."""
+    label, _, point = name.rpartition(":")
+    found = [r for r in done.values() if r["kind"] == "set" and r["scenario"] == s.name
+             and r["label"] == label and str(r["point"]) == point]  # fmt: skip
+    if not found:
+        raise SystemExit(f"--start-from {name}: no set {point!r} of label {label!r} for {s.name}")
+    return {k: int(v) for k, v in found[-1]["values"].items()}
 
 
 def margin_start(s, args, point: float | None, start: dict[str, int]) -> dict[str, Any]:
@@ -541,6 +556,8 @@ def main() -> None:
                 chained = chain_start(done, base, i)
                 candidates = [chained] if chained else []
                 candidates.append(("centre", machine_center(s)))
+                if args.start_from:
+                    candidates.append((args.start_from, recorded_set(done, s, args.start_from)))
                 name, start, probes = pick_start(s, args, v, candidates)
                 rec |= {"warm_start": name, "start_probes": probes}
             if _is_machine(s) and args.margin_start:
@@ -617,6 +634,7 @@ def main() -> None:
                        for k in ("points", "budget", "robust", "episodes", "seed", "label"))
             + (" --chain" if args.chain else "")
             + (" --margin-start" if args.margin_start else "")
+            + (f" --start-from {args.start_from}" if args.start_from else "")
         )  # fmt: skip
         summaries.append(summary)
         print(f"{s.name}: oracle gap {summary['oracle_gap']:.3g} (best fixed "

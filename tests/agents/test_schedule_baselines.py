@@ -361,3 +361,13 @@ def test_the_pooled_oracle_takes_the_cheapest_checked_set_at_each_point(oracle_s
     assert out["oracle_gap"] == pytest.approx(5.0 / 3.0)
     assert out["oracle_gap_worst_point"] == pytest.approx(4.0)
     assert "a:2" not in out["pool"]
+
+
+def test_start_from_reads_a_recorded_set_by_label_and_point(oracle_script):
+    s = oracle_script.get_any_scenario("TwoLinkArm")
+    rec = {"kind": "set", "scenario": "TwoLinkArm", "label": "margins:oracle:x:2",
+           "point": "cycle", "values": {"kp.1": 7}}  # fmt: skip
+    done = {("set", "TwoLinkArm", "cycle", None, rec["label"], 3): rec}
+    assert oracle_script.recorded_set(done, s, "margins:oracle:x:2:cycle") == {"kp.1": 7}
+    with pytest.raises(SystemExit, match="no set 'robust' of label 'margins:oracle:x:2'"):
+        oracle_script.recorded_set(done, s, "margins:oracle:x:2:robust")
