@@ -201,7 +201,9 @@ def main() -> None:
                     continue
             passed = [_run(args, done, eid, s, label, values, i, v, extra)
                       for i, v in enumerate(points)]  # fmt: skip
-            if all(passed) and eid == so._scenario_id(so.get_any_scenario(s.name)):
+            oracle_names = {name for name, _ in so.MACHINE_SCENARIOS}  # the PMD ids only
+            if (all(passed) and s.name in oracle_names
+                    and eid == so._scenario_id(so.get_any_scenario(s.name))):  # fmt: skip
                 record_for_oracle(s, label, values, points, args)
             continue
         if args.sets == "centre":
