@@ -98,11 +98,7 @@ def oracle_set(scenario: str, label: str, path: Path) -> dict[str, int]:
 
 def check_at(s, values: dict[str, int], point: float, workers: int) -> dict[str, Any]:
     """The multi-axis check of ``values`` at ``point`` (the tuning problem's limits)."""
-    from servogym.autotune._tuners import DEFAULT_TUNER
-
-    args = argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=workers, robust=1,
-                              check_candidates=1)  # fmt: skip
-    config = so._config(s, args, point)
+    config = so._config(s, so.point_args(workers), point)
     problem = config.problem()
     report = problem.check(problem.space.make_params(values), config.check_limits(),
                            workers=workers)  # fmt: skip
@@ -216,22 +212,11 @@ def main() -> None:
 
 def record_for_oracle(s, label: str, values: dict[str, int], points: list[float], args) -> None:
     """A set that passed the check at every point of the cycle, in the oracle study's records
-    (``schedule_oracle.py``'s format, point ``cycle``, with its cross-evaluation), so that
-    ``schedule_oracle.py --pooled`` counts it among the checked sets known."""
-    key = ("set", s.name, "cycle", None, label, len(points))
-    if key in so._done(args.oracle):
-        return
-    from servogym.autotune._tuners import DEFAULT_TUNER
-
-    ns = argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=args.workers,
-                            robust=1, check_candidates=1)  # fmt: skip
-    rec = {"kind": "set", "point": "cycle", "scenario": s.name, "budget": None, "label": label,
-           "points": len(points), "value": None, "tuner": "margin-search", "values": values,
-           "feasible": None, "check_passed": True, "check_failures": [],
-           "checked_at": [float(p) for p in points],
-           "cross": so.cross_costs(s, values, points, ns)}  # fmt: skip
-    so._append(args.oracle, rec)
-    print(f"recorded in {args.oracle}: cross {[round(c, 3) for c in rec['cross']]}", flush=True)
+    (point ``cycle``), so that ``schedule_oracle.py --pooled`` counts it."""
+    cross = so.append_checked_set(args.oracle, s, label, "cycle", values, points, args.workers,
+                                  value=None, checked_at=[float(p) for p in points])  # fmt: skip
+    if cross is not None:
+        print(f"recorded in {args.oracle}: cross {[round(c, 3) for c in cross]}", flush=True)
 
 
 def margins_centre(s, points: list[float], workers: int, start: dict[str, int]) -> dict[str, Any]:
@@ -240,11 +225,7 @@ def margins_centre(s, points: list[float], workers: int, start: dict[str, int]) 
     linear analysis)."""
     from machine_margin_search import move_into_margins
 
-    from servogym.autotune._tuners import DEFAULT_TUNER
-
-    args = argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=workers, robust=1,
-                              check_candidates=1)  # fmt: skip
-    config = so._config(s, args, points[0])
+    config = so._config(s, so.point_args(workers), points[0])
     plants = [{s.param: float(p)} for p in points]
     return move_into_margins(config.problem(), config.check_limits(), start,
                              plants=plants)  # fmt: skip

@@ -201,21 +201,11 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=RESULTS / "margin_search.jsonl")
     args = ap.parse_args()
 
-    from servogym.autotune._tuners import DEFAULT_TUNER
-
     s = so.get_any_scenario(args.scenario)
     point = float(s.operating_points(args.points)[args.point])
-    start = None
-    for line in (RESULTS / "oracle.jsonl").read_text().splitlines():
-        rec = json.loads(line)
-        if (rec.get("scenario") == args.scenario and rec.get("label") == args.from_label
-                and rec.get("kind") == "set" and rec.get("point") == args.point):  # fmt: skip
-            start = {k: int(v) for k, v in rec["values"].items()}
-    if start is None:
-        raise SystemExit(f"no set of point {args.point} with label {args.from_label!r}")
-    ns = argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=args.workers,
-                            robust=1, check_candidates=1)  # fmt: skip
-    config = so._config(s, ns, point)
+    start = so.recorded_set(so._done(RESULTS / "oracle.jsonl"), s,
+                            f"{args.from_label}:{args.point}", "--from-label/--point")  # fmt: skip
+    config = so._config(s, so.point_args(args.workers), point)
     problem = config.problem()
     limits = config.check_limits()
     earlier = (
@@ -230,7 +220,7 @@ def main() -> None:
     else:
         print(f"{args.label}: the search is in {args.out}; not run again")
     if rec.get("check_passed"):
-        record_for_oracle(args, s, ns, rec)
+        record_for_oracle(args, s, rec)
 
 
 def search_and_check(args, problem, limits, start: dict[str, int], point: float) -> dict:
@@ -257,24 +247,19 @@ def search_and_check(args, problem, limits, start: dict[str, int], point: float)
     return rec
 
 
-def record_for_oracle(args, s, ns, rec: dict[str, Any]) -> None:
-    """Append the checked set found to the oracle study's records (``schedule_oracle.py``'s
-    format, tuner ``margin-search``, with its cross-evaluation at every point), so that
-    ``schedule_oracle.py --pooled`` counts it among the checked sets known."""
+def record_for_oracle(args, s, rec: dict[str, Any]) -> None:
+    """Append the checked set found to the oracle study's records (tuner ``margin-search``,
+    with its cross-evaluation at every point), so that ``schedule_oracle.py --pooled`` counts
+    it among the checked sets known."""
     path = RESULTS / "oracle.jsonl"
-    key = ("set", args.scenario, str(args.point), None, args.label, args.points)
-    if key in so._done(path):
-        return
-    points = s.operating_points(args.points)
-    out = {"kind": "set", "point": args.point, "scenario": args.scenario, "budget": None,
-           "label": args.label, "points": args.points, "value": rec["value"],
-           "tuner": "margin-search", "values": rec["found"], "feasible": None,
-           "check_passed": True, "check_failures": [], "warm_start": rec["from_label"],
-           "margin_start": {k: rec.get(k) for k in ("start_slack", "slack", "where",
-                                                "evaluations", "search_s")},
-           "cross": so.cross_costs(s, rec["found"], points, ns)}  # fmt: skip
-    so._append(path, out)
-    print(f"recorded in {path}: cross {[round(c, 3) for c in out['cross']]}")
+    margin_start = {k: rec.get(k) for k in ("start_slack", "slack", "where", "evaluations",
+                                            "search_s")}  # fmt: skip
+    cross = so.append_checked_set(path, s, args.label, args.point, rec["found"],
+                                  s.operating_points(args.points), args.workers,
+                                  value=rec["value"], warm_start=rec["from_label"],
+                                  margin_start=margin_start)  # fmt: skip
+    if cross is not None:
+        print(f"recorded in {path}: cross {[round(c, 3) for c in cross]}")
 
 
 if __name__ == "__main__":

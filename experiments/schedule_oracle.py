@@ -131,6 +131,31 @@ def _key(rec: dict[str, Any]) -> tuple:
             rec["points"])  # fmt: skip
 
 
+def point_args(workers: int) -> argparse.Namespace:
+    """What :func:`_config` reads for one point's problem when nothing is tuned (a check, a
+    cross-evaluation, a margin search)."""
+    from servogym.autotune._tuners import DEFAULT_TUNER
+
+    return argparse.Namespace(budget=1, tuner=DEFAULT_TUNER, seed=0, workers=workers, robust=1,
+                              check_candidates=1)  # fmt: skip
+
+
+def append_checked_set(path: Path, s, label: str, point: int | str, values: dict[str, int],
+                       points: list[float], workers: int,
+                       **fields: Any) -> list[float] | None:  # fmt: skip
+    """Append a set found outside a tuning run that passed the check (``fields``: where) to
+    the records at ``path``, with its cross-evaluation at ``points``, unless a record has it,
+    so that ``--pooled`` counts it among the checked sets known; its costs, or ``None``."""
+    if ("set", s.name, str(point), None, label, len(points)) in _done(path):
+        return None
+    rec = {"kind": "set", "point": point, "scenario": s.name, "budget": None, "label": label,
+           "points": len(points), "tuner": "margin-search", "values": values,
+           "feasible": None, "check_passed": True, "check_failures": [], **fields,
+           "cross": cross_costs(s, values, points, point_args(workers))}  # fmt: skip
+    _append(path, rec)
+    return rec["cross"]
+
+
 def _append(path: Path, rec: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("a") as f:
@@ -312,13 +337,15 @@ def pick_start(
     return candidates[best][0], candidates[best][1], probes
 
 
-def recorded_set(done: dict[tuple, dict[str, Any]], s, name: str) -> dict[str, int]:
-    """The values of the recorded set ``<label>:<point>`` of scenario ``s`` (the last one)."""
+def recorded_set(done: dict[tuple, dict[str, Any]], s, name: str,
+                 flag: str = "--start-from") -> dict[str, int]:  # fmt: skip
+    """The values of the recorded set ``<label>:<point>`` of scenario ``s`` (the last one);
+    ``flag`` names the option that asked for it in the error."""
     label, _, point = name.rpartition(":")
     found = [r for r in done.values() if r["kind"] == "set" and r["scenario"] == s.name
              and r["label"] == label and str(r["point"]) == point]  # fmt: skip
     if not found:
-        raise SystemExit(f"--start-from {name}: no set {point!r} of label {label!r} for {s.name}")
+        raise SystemExit(f"{flag} {name}: no set {point!r} of label {label!r} for {s.name}")
     return {k: int(v) for k, v in found[-1]["values"].items()}
 
 
