@@ -83,17 +83,11 @@ def detuned(values: dict[str, int], family: str, scale: float) -> dict[str, int]
     return out
 
 
-def oracle_set(scenario: str, label: str, path: Path) -> dict[str, int]:
-    """The set of ``schedule_oracle.py``'s run ``label`` on ``scenario``: its robust one, or
+def oracle_set(s, label: str, path: Path) -> dict[str, int]:
+    """The set of ``schedule_oracle.py``'s run ``label`` on scenario ``s``: its robust one, or
     with ``label`` ``<label>:<point>`` the set tuned for that point."""
-    label, _, point = label.partition(":")
-    point = point or "robust"
-    recs = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
-    found = [r for r in recs if r["kind"] == "set" and r["scenario"] == scenario
-             and r["label"] == label and str(r["point"]) == point]  # fmt: skip
-    if not found:
-        raise SystemExit(f"no set {point!r} of label {label!r} for {scenario} in {path}")
-    return {k: int(v) for k, v in found[-1]["values"].items()}
+    name = label if ":" in label else f"{label}:robust"
+    return so.recorded_set(so._done(path), s, name, "--sets oracle:<label>:<point> =")
 
 
 def check_at(s, values: dict[str, int], point: float, workers: int) -> dict[str, Any]:
@@ -185,7 +179,7 @@ def main() -> None:
             if values is None:
                 start = (
                     so.machine_center(s) if label == "margins"
-                    else oracle_set(s.name, label.split(":", 2)[2], args.oracle)
+                    else oracle_set(s, label.split(":", 2)[2], args.oracle)
                 )  # fmt: skip
                 moved = margins_centre(s, points, args.workers, start)
                 extra = {"margin_search": {k: w for k, w in moved.items() if k != "values"}}
@@ -205,7 +199,7 @@ def main() -> None:
         if args.sets == "centre":
             values = so.machine_center(s)
         else:
-            values = oracle_set(s.name, args.sets.split(":", 1)[1], args.oracle)
+            values = oracle_set(s, args.sets.split(":", 1)[1], args.oracle)
         for i, v in enumerate(points):
             _run(args, done, eid, s, args.sets, values, i, v)
 
