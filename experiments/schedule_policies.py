@@ -5,8 +5,9 @@
     .venv/bin/python experiments/schedule_policies.py --scenarios RotaryInertia --minutes 60
 
 For each scenario of ``servogym.envs.SCENARIOS`` (``--scenarios`` picks some; ``TwoLinkArm``,
-the machine scenario of ``schedule_oracle.MACHINE_SCENARIOS``, by name with
-``--skip-train``: ``center_table`` is single-axis only):
+the machine scenario of ``schedule_oracle.MACHINE_SCENARIOS``, by name, with ``--center
+best-fixed`` because ``center_table`` is single-axis only, and ``--oracle-label pooled``
+because no single run of it gave a set that passes the check at every payload):
 
 1. **Baselines** from the oracle study (``experiments/schedule_oracle.py``, its ``--label``
    and ``--budget``), each from the sets that passed ``servogym check`` (an engineer stores
@@ -116,6 +117,8 @@ def baselines(s: Any, oracle_path: Path, label: str, budget: int) -> dict[str, A
     sys.path.insert(0, str(HERE))
     from schedule_oracle import summarize
 
+    if label == POOLED:
+        return pooled_baselines(s, oracle_path)
     records = []
     if oracle_path.exists():
         for line in oracle_path.read_text().splitlines():
@@ -158,6 +161,51 @@ def baselines(s: Any, oracle_path: Path, label: str, budget: int) -> dict[str, A
         "best_fixed_point_mean_cost": summary["best_fixed_mean_cost"],
         "oracle_gap": summary["oracle_gap"],
         "checks_passed": {m: bool(v) for m, v in summary["checks_passed"].items()},
+    }
+
+
+POOLED = "pooled"
+"""``--oracle-label pooled``: the baselines of ``schedule_oracle.py --pooled`` (every checked
+set of every run, counted at the points where it passed the check; ``--oracle-budget`` is not
+used). The machine scenario's (``TwoLinkArm``) baselines: no single run gave a set that passes
+at every payload."""
+
+
+def pooled_baselines(s: Any, oracle_path: Path, n_points: int = 3) -> dict[str, Any]:
+    """:func:`baselines` from :func:`schedule_oracle.summarize_pooled`: the best fixed set is
+    the cheapest of the sets checked at every point, the gain table's rows are each point's
+    cheapest set checked there (the pooled oracle's sets). No robust set of its own
+    (``robust_values`` is ``None``)."""
+    from schedule_oracle import _done, checked_at_points, summarize_pooled
+
+    done = _done(oracle_path) if oracle_path.exists() else {}
+    points = s.operating_points(n_points)
+    summary = summarize_pooled(list(done.values()), s, points, checked_at_points(s, n_points))
+    if summary is None:
+        raise SystemExit(
+            f"no pooled oracle of {s.name} at {n_points} points in {oracle_path} (some point "
+            f"has no checked set, or no set passed at every point); see "
+            f"experiments/schedule_oracle.py --pooled"
+        )
+    sets = {f"{r['label']}:{r['point']}": r for r in done.values()
+            if r["kind"] == "set" and r["scenario"] == s.name and r["points"] == n_points}  # fmt: skip
+    table = [(points[i], sets[name]["values"]) for i, name in enumerate(summary["oracle_from"])]
+    return {
+        "points": points,
+        "table": table,
+        "table_points": list(points),
+        "table_checked": True,  # each row passed the check at its point
+        "best_fixed_checked": True,
+        "best_fixed": summary["best_fixed"],
+        "best_fixed_values": sets[summary["best_fixed"]]["values"],
+        "robust_values": None,
+        "oracle_costs": summary["oracle_costs"],
+        "oracle_mean_cost": summary["oracle_mean_cost"],
+        "best_fixed_point_mean_cost": summary["best_fixed_mean_cost"],
+        "oracle_gap": summary["oracle_gap"],
+        "checks_passed": {m: True for m in summary["pool"]},
+        "checked_at": summary["checked_at"],
+        "oracle_from": summary["oracle_from"],
     }
 
 
@@ -358,12 +406,14 @@ def scenario_row(
         "gain_table_mean_cost": headline.get("gain_table_mean_cost"),
         "robust_mean_cost": headline.get(
             "best_fixed_mean_cost" if base["best_fixed"] == "robust" else "robust_mean_cost"
-        ),
+        ),  # None with --oracle-label pooled: no robust set of its own
         "oracle_mean_cost": base["oracle_mean_cost"],
         "oracle_basis": (
-            f"operating points: each of the {len(base['points'])} points' own set at that point "
-            "(nominal plant otherwise), the oracle study's cross-evaluation; not episodes"
-        ),
+            f"operating points: each of the {len(base['points'])} points' "
+            + ("cheapest set that passed the check there, of every run (pooled)"
+               if "oracle_from" in base else "own set at that point")
+            + " (nominal plant otherwise), the oracle study's cross-evaluation; not episodes"
+        ),  # fmt: skip
         "oracle_gap": base["oracle_gap"],
         "best_fixed": base["best_fixed"],
         "points": base["points"],
@@ -371,6 +421,8 @@ def scenario_row(
         "gain_table_checked": base["table_checked"],
         "best_fixed_checked": base["best_fixed_checked"],
         "oracle_checks_passed": base["checks_passed"],
+        **({"oracle_from": base["oracle_from"], "checked_at": base["checked_at"]}
+           if "oracle_from" in base else {}),  # fmt: skip
         **{k: v for k, v in headline.items() if k.startswith("policy_over")},
         "by_integration": per,
     }
@@ -407,11 +459,14 @@ def _run_tag(run: dict[str, Any]) -> str:
 
 
 def _block_key(scenario: str, name: str, integ: str, run: dict[str, Any] | None,
-               args: argparse.Namespace) -> str:  # fmt: skip
-    """The key of one policy's block of episodes in ``--episodes-out``."""
+               args: argparse.Namespace, base: dict[str, Any]) -> str:  # fmt: skip
+    """The key of one policy's block of episodes in ``--episodes-out``. A pooled study's
+    names its sets (the pool grows with every run)."""
     tag = _run_tag(run) if name == "policy" else ""
+    sets = (f"|{base['best_fixed']}|{','.join(base['oracle_from'])}"
+            if "oracle_from" in base else "")  # fmt: skip
     return (f"{scenario}|{name}{tag}|{integ}|{args.eval_seed}|{args.episodes}|"
-            f"{args.oracle_label}|{args.oracle_budget}")  # fmt: skip
+            f"{args.oracle_label}|{args.oracle_budget}{sets}")  # fmt: skip
 
 
 def _row_key(row: dict[str, Any]) -> tuple[str, str | None]:
@@ -422,7 +477,8 @@ def _row_key(row: dict[str, Any]) -> tuple[str, str | None]:
 def _policies(run: dict[str, Any] | None, base: dict[str, Any]) -> list[str]:
     """The policies evaluated: the trained one, best fixed, the robust set when it is not the
     best fixed one, the gain table."""
-    robust = [] if base["best_fixed"] == "robust" else ["robust"]
+    own = base["best_fixed"] == "robust" or base.get("robust_values") is None
+    robust = [] if own else ["robust"]
     return (["policy"] if run is not None else []) + ["best_fixed", *robust, "gain_table"]
 
 
@@ -533,7 +589,7 @@ def main(argv: list[str] | None = None) -> None:
         jobs = []
         for name in _policies(run, base):
             for integ in args.integrations.split(","):
-                key = _block_key(s.name, name, integ, run, args)
+                key = _block_key(s.name, name, integ, run, args, base)
                 if key in done:
                     continue
                 jobs.append({"scenario": s.name, "env_id": env_id, "policy": name,
@@ -555,7 +611,7 @@ def main(argv: list[str] | None = None) -> None:
         blocks = {}
         for name in _policies(run, base):
             for integ in args.integrations.split(","):
-                blocks[(name, integ)] = done[_block_key(s.name, name, integ, run, args)]
+                blocks[(name, integ)] = done[_block_key(s.name, name, integ, run, args, base)]
         row = scenario_row(s, env_id, base, blocks, run, args)
         rows.append(row)
         print(json.dumps({k: row[k] for k in row if "mean_cost" in k or k.startswith(

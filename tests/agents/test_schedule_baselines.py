@@ -371,3 +371,39 @@ def test_start_from_reads_a_recorded_set_by_label_and_point(oracle_script):
     assert oracle_script.recorded_set(done, s, "margins:oracle:x:2:cycle") == {"kp.1": 7}
     with pytest.raises(SystemExit, match="no set 'robust' of label 'margins:oracle:x:2'"):
         oracle_script.recorded_set(done, s, "margins:oracle:x:2:robust")
+
+
+def test_pooled_baselines_take_the_pooled_oracles_sets(study, tmp_path, monkeypatch):
+    import schedule_oracle  # the module schedule_policies imports (its folder is on sys.path)
+
+    monkeypatch.setattr(schedule_oracle, "checked_at_points", lambda s, n: {"a:1": {0}})
+    s = schedule_oracle.get_any_scenario("TwoLinkArm")
+    points = s.operating_points(3)
+
+    def rec(label, point, cross, values, **kw):
+        return {"kind": "set", "scenario": "TwoLinkArm", "points": 3, "label": label,
+                "point": point, "budget": 150, "cross": cross, "check_passed": True,
+                "values": values, **kw}  # fmt: skip
+
+    lines = [
+        rec("a", 0, [2.0, 3.0, 9.0], {"kp.1": 1}),
+        rec("a", 1, [1.0, 2.0, 9.0], {"kp.1": 2}),  # checked at 0.05 kg too (the patched file)
+        rec("c", 2, [5.0, 5.0, 6.0], {"kp.1": 3}),
+        rec("d", "cycle", [4.0, 4.5, 6.5], {"kp.1": 4}, checked_at=list(points)),
+    ]
+    path = tmp_path / "oracle.jsonl"
+    path.write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+    b = study.baselines(s, path, "pooled", 150)  # the budget is not used
+    assert b["best_fixed"] == "d:cycle" and b["best_fixed_values"] == {"kp.1": 4}
+    assert b["oracle_from"] == ["a:1", "a:1", "c:2"]
+    assert b["table"] == [(points[0], {"kp.1": 2}), (points[1], {"kp.1": 2}),
+                          (points[2], {"kp.1": 3})]  # fmt: skip
+    assert b["oracle_mean_cost"] == pytest.approx((1.0 + 2.0 + 6.0) / 3)
+    assert b["robust_values"] is None
+    assert study._policies(None, b) == ["best_fixed", "gain_table"]  # no robust set to run
+    args = study._parse(["--oracle-label", "pooled"])
+    key = study._block_key("TwoLinkArm", "best_fixed", "default", None, args, b)
+    assert key.endswith("|pooled|150|d:cycle|a:1,a:1,c:2")  # a grown pool is run again
+    path.write_text(json.dumps(lines[0]) + "\n")
+    with pytest.raises(SystemExit, match="no pooled oracle of TwoLinkArm at 3 points"):
+        study.baselines(s, path, "pooled", 150)
