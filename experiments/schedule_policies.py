@@ -187,8 +187,8 @@ def pooled_baselines(s: Any, oracle_path: Path, n_points: int = 3) -> dict[str, 
             f"has no checked set, or no set passed at every point); see "
             f"experiments/schedule_oracle.py --pooled"
         )
-    sets = {f"{r['label']}:{r['point']}": r for r in done.values()
-            if r["kind"] == "set" and r["scenario"] == s.name and r["points"] == n_points}  # fmt: skip
+    sets = {f"{r['label']}:{r['point']}": r for r in done.values() if r["kind"] == "set"
+            and r["scenario"] == s.name and r["points"] == n_points}  # fmt: skip
     table = [(points[i], sets[name]["values"]) for i, name in enumerate(summary["oracle_from"])]
     return {
         "points": points,
@@ -408,12 +408,7 @@ def scenario_row(
             "best_fixed_mean_cost" if base["best_fixed"] == "robust" else "robust_mean_cost"
         ),  # None with --oracle-label pooled: no robust set of its own
         "oracle_mean_cost": base["oracle_mean_cost"],
-        "oracle_basis": (
-            f"operating points: each of the {len(base['points'])} points' "
-            + ("cheapest set that passed the check there, of every run (pooled)"
-               if "oracle_from" in base else "own set at that point")
-            + " (nominal plant otherwise), the oracle study's cross-evaluation; not episodes"
-        ),  # fmt: skip
+        "oracle_basis": oracle_basis(base),
         "oracle_gap": base["oracle_gap"],
         "best_fixed": base["best_fixed"],
         "points": base["points"],
@@ -421,8 +416,7 @@ def scenario_row(
         "gain_table_checked": base["table_checked"],
         "best_fixed_checked": base["best_fixed_checked"],
         "oracle_checks_passed": base["checks_passed"],
-        **({"oracle_from": base["oracle_from"], "checked_at": base["checked_at"]}
-           if "oracle_from" in base else {}),  # fmt: skip
+        **{k: base[k] for k in ("oracle_from", "checked_at") if k in base},  # pooled only
         **{k: v for k, v in headline.items() if k.startswith("policy_over")},
         "by_integration": per,
     }
@@ -442,6 +436,14 @@ def scenario_row(
         + (" --skip-train" if args.skip_train else "")
     )
     return out
+
+
+def oracle_basis(base: dict[str, Any]) -> str:
+    """What a summary row's oracle cost is (the oracle study's cross-evaluation)."""
+    sets = ("cheapest set that passed the check there, of every run (pooled)"
+            if "oracle_from" in base else "own set at that point")  # fmt: skip
+    return (f"operating points: each of the {len(base['points'])} points' {sets} (nominal "
+            "plant otherwise), the oracle study's cross-evaluation; not episodes")  # fmt: skip
 
 
 def _shown(path: Path) -> str:
