@@ -549,6 +549,18 @@ def summarize_pooled(
     }
 
 
+def pooled_sets(done: dict[tuple, dict[str, Any]], s,
+                summary: dict[str, Any]) -> tuple[dict[str, int], list]:  # fmt: skip
+    """The register values of a :func:`summarize_pooled` summary's sets: the best fixed set's,
+    and the gain table (each point's oracle set: ``(point, values)`` rows)."""
+    n = len(summary["points"])
+    sets = {f"{r['label']}:{r['point']}": r for r in done.values() if r["kind"] == "set"
+            and r["scenario"] == s.name and r["points"] == n}  # fmt: skip
+    table = [(p, sets[m]["values"]) for p, m in zip(summary["points"], summary["oracle_from"],
+                                                     strict=True)]  # fmt: skip
+    return sets[summary["best_fixed"]]["values"], table
+
+
 def main() -> None:
     args = _parse()
     from servogym.envs._scenarios import SCENARIOS
@@ -615,12 +627,8 @@ def main() -> None:
                         and r["point"] == "pooled" and r["scenario"] == s.name
                         and r.get("pool") == summary["pool"]), None)  # fmt: skip
             if old is None:
-                pool = {n: r for n in summary["pool"] for r in done.values()
-                        if r["kind"] == "set" and f"{r['label']}:{r['point']}" == n}  # fmt: skip
-                table = [(points[i], pool[n]["values"]) for i, n in
-                         enumerate(summary["oracle_from"])]  # fmt: skip
-                policies = {"best_fixed": pool[summary["best_fixed"]]["values"],
-                            "gain_table": table}  # fmt: skip
+                best, table = pooled_sets(done, s, summary)
+                policies = {"best_fixed": best, "gain_table": table}
                 ep["results"] = episodes(s, policies, args.episodes, args.seed)
                 _append(args.out, ep)
                 done[_key(ep)] = ep

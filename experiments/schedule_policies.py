@@ -176,7 +176,7 @@ def pooled_baselines(s: Any, oracle_path: Path, n_points: int = 3) -> dict[str, 
     the cheapest of the sets checked at every point, the gain table's rows are each point's
     cheapest set checked there (the pooled oracle's sets). No robust set of its own
     (``robust_values`` is ``None``)."""
-    from schedule_oracle import _done, checked_at_points, summarize_pooled
+    from schedule_oracle import _done, checked_at_points, pooled_sets, summarize_pooled
 
     done = _done(oracle_path) if oracle_path.exists() else {}
     points = s.operating_points(n_points)
@@ -187,9 +187,7 @@ def pooled_baselines(s: Any, oracle_path: Path, n_points: int = 3) -> dict[str, 
             f"has no checked set, or no set passed at every point); see "
             f"experiments/schedule_oracle.py --pooled"
         )
-    sets = {f"{r['label']}:{r['point']}": r for r in done.values() if r["kind"] == "set"
-            and r["scenario"] == s.name and r["points"] == n_points}  # fmt: skip
-    table = [(points[i], sets[name]["values"]) for i, name in enumerate(summary["oracle_from"])]
+    best_values, table = pooled_sets(done, s, summary)
     return {
         "points": points,
         "table": table,
@@ -197,7 +195,7 @@ def pooled_baselines(s: Any, oracle_path: Path, n_points: int = 3) -> dict[str, 
         "table_checked": True,  # each row passed the check at its point
         "best_fixed_checked": True,
         "best_fixed": summary["best_fixed"],
-        "best_fixed_values": sets[summary["best_fixed"]]["values"],
+        "best_fixed_values": best_values,
         "robust_values": None,
         "oracle_costs": summary["oracle_costs"],
         "oracle_mean_cost": summary["oracle_mean_cost"],
