@@ -21,6 +21,9 @@ by a search on the check's linear analysis (``machine_margin_search.py``; no sim
 ``margins:oracle:<label>:<point>`` starts from that oracle set instead);
 ``--sets oracle:<label>`` checks instead the robust set of ``schedule_oracle.py``'s run of that
 label (a candidate replacement; ``oracle:<label>:<point>``: the set tuned for that point);
+``--sets ff:<sets>`` checks the set of ``<sets>``'s lines with its feed-forward registers
+fitted on the check's tasks until their following error clears its limit at every point
+(the loop gains, and so the margins, kept: ``machine_margin_search.fit_feed_forward``);
 ``--sets detuned`` checks the centre with its loop gain scaled down
 (:data:`DETUNE_REGISTERS` times each of :data:`DETUNE_SCALES` in turn, the heaviest point
 first) until a scale passes at every point: what an engineer does with a set that rings,
@@ -141,11 +144,11 @@ def main() -> None:
     if args.points < 2:
         raise SystemExit(f"--points must be >= 2; got --points {args.points}.")
     if args.sets not in ("centre", "detuned", "margins") and not args.sets.startswith(
-        ("oracle:", "margins:oracle:")
+        ("oracle:", "margins:oracle:", "ff:")
     ):
         raise SystemExit(
-            f"--sets must be centre, detuned, margins, margins:oracle:<label>:<point> or "
-            f"oracle:<label>[:<point>]; got --sets {args.sets}."
+            f"--sets must be centre, detuned, margins, margins:oracle:<label>:<point>, "
+            f"ff:<sets> or oracle:<label>[:<point>]; got --sets {args.sets}."
         )
     ids = args.ids.split(",") if args.ids else machine_ids(args.version)
     done: dict[tuple, dict[str, Any]] = {}
@@ -170,6 +173,9 @@ def main() -> None:
                     break
             else:
                 print(f"{eid}: no scale down to {DETUNE_SCALES[-1]} passes", flush=True)
+            continue
+        if args.sets.startswith("ff:"):
+            feed_forward(args, done, eid, s, points)
             continue
         if args.sets.startswith("margins"):
             label = args.sets
@@ -202,6 +208,38 @@ def main() -> None:
             values = oracle_set(s, args.sets.split(":", 1)[1], args.oracle)
         for i, v in enumerate(points):
             _run(args, done, eid, s, args.sets, values, i, v)
+
+
+def feed_forward(args, done: dict, eid: str, s, points: list[float]) -> bool:
+    """``--sets ff:<sets>``: the set of ``<sets>``'s lines for ``eid`` with its feed-forward
+    registers fitted until the tasks' following error and saturation clear their limits at
+    every point (``machine_margin_search.fit_feed_forward``; the loop gains, and so the
+    margins, kept), then checked at every point. Passed everywhere?"""
+    from machine_margin_search import fit_feed_forward
+
+    label, source = args.sets, args.sets.split(":", 1)[1]
+    prev = [done.get((eid, label, args.points, i)) for i in range(len(points))]
+    values = next((p["values"] for p in prev if p), None)
+    extra: dict[str, Any] = {}
+    if values is None:
+        start = next((r["values"] for (e, name, n, _), r in done.items()
+                      if e == eid and name == source and n == args.points), None)  # fmt: skip
+        if start is None:
+            raise SystemExit(f"--sets {label}: no line of {eid} with sets {source!r} in "
+                             f"{args.out} (check that set first).")  # fmt: skip
+        config = so._config(s, so.point_args(args.workers), points[0])
+        fit = fit_feed_forward(config.problem(), config.check_limits(), start,
+                               plants=[{s.param: float(p)} for p in points],
+                               workers=args.workers)  # fmt: skip
+        extra = {"feed_forward": {k: w for k, w in fit.items() if k not in ("values", "best")}}
+        print(f"{eid}: feed-forward fit from {source}: worst ratio {fit['start_ratio']:.3g} "
+              f"-> {fit['ratio']:.3g} ({fit['evaluations']} evaluations, "
+              f"{fit['search_s']:.0f} s; {fit['where']})", flush=True)  # fmt: skip
+        values = fit["values"]
+        if values is None:
+            return False
+    return all([_run(args, done, eid, s, label, values, i, v, extra)
+                for i, v in enumerate(points)])  # fmt: skip
 
 
 def record_for_oracle(s, label: str, values: dict[str, int], points: list[float], args) -> None:

@@ -187,6 +187,138 @@ def move_into_margins(
     return out
 
 
+FEED_FORWARD: dict[str, tuple[str, ...]] = {
+    "pmd": ("kvff", "kaff"),
+    "pmac": ("velocity_ff", "acceleration_ff"),
+    "parker6k": ("sgvf", "sgaf"),
+}
+"""Per chip family, the feed-forward registers :func:`fit_feed_forward` moves (every axis's):
+they act on the commanded trajectory outside the loop, so the loop's margins do not change."""
+
+
+class TaskErrors:
+    """The check's following-error and saturation tests on its reference case, at each plant
+    of ``plants``, for one set: the tasks run as the check runs them (RK4 reference)."""
+
+    def __init__(self, problem: Any, limits: Any, sets: list[Any], plants: list[dict]) -> None:
+        from servogym.sim._multicheck import _machine, machine_stress_cases
+
+        evaluator = problem.make_evaluator()
+        evaluator.plant.set_params(problem.nominal_plant())
+        self.limits = limits
+        self.evaluators = []
+        for values in plants:
+            machine, _ = _machine(sets, evaluator.multi, None, values, None, None, None, None)
+            reference = machine_stress_cases(machine, limits)[0]
+            self.evaluators.append(machine.evaluator(reference, limits))
+        self.fe_limits = [self._fe_limits(ev) for ev in self.evaluators]
+
+    def _fe_limits(self, ev: Any) -> np.ndarray:
+        from servogym.sim._multicheck import _spans
+
+        spans = _spans(ev.commands())
+        if self.limits.max_following_error is not None:
+            return np.full(len(spans), float(self.limits.max_following_error))
+        return 0.01 * np.where(spans > 0, spans, np.max(spans))
+
+    def ratio(self, sets: list[Any], workers: int = 1) -> tuple[float, str]:
+        """The worst of (following error / its limit) and (saturation / its maximum) over
+        every plant and axis (a divergence: 10), and where it is."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max(1, workers)) as pool:  # the loop releases the GIL
+            runs = list(pool.map(lambda ev: ev.evaluate(sets), self.evaluators))
+        worst, where = -np.inf, ""
+        for k, (e, fe_max) in enumerate(zip(runs, self.fe_limits, strict=True)):
+            if e.diverged:
+                return 10.0, f"plant {k + 1}: diverged"
+            for a in range(len(fe_max)):
+                ms = [t.metrics[a] for t in e.tasks]
+                fe = max(m.max_following_error for m in ms)
+                ticks = max(sum(m.n_ticks for m in ms), 1)
+                sat = sum(m.saturation_fraction * m.n_ticks for m in ms) / ticks
+                for r, what in ((fe / fe_max[a], f"following error {fe:.0f} / {fe_max[a]:.0f}"),
+                                (sat / self.limits.max_saturation, f"saturation {sat:.3f}")):
+                    if r > worst:
+                        worst, where = float(r), f"plant {k + 1}, axis {a + 1}: {what}"
+        return worst, where
+
+
+def fit_feed_forward(
+    problem: Any,
+    limits: Any,
+    start: dict[str, int],
+    *,
+    plants: list[dict],
+    target: float = 0.85,
+    max_evals: int = 80,
+    workers: int = 1,
+) -> dict[str, Any]:
+    """Nelder-Mead on the log feed-forward registers (:data:`FEED_FORWARD`, every axis's) of
+    ``start`` until the worst of following error / limit and saturation / maximum over the
+    check's tasks at every plant of ``plants`` (:class:`TaskErrors`) is at most ``target``.
+    The feedback gains are kept, so the margins are those of ``start``. Returns
+    ``{"values": the set found or None, "ratio", "where", "start_ratio", "start_where",
+    "evaluations", "search_s"}`` (without a set found, ``ratio`` is the best reached and
+    ``values`` its set is under ``"best"``)."""
+    import scipy.optimize
+
+    from servogym.chips._family import get_chip
+
+    space = problem.space
+    ff = FEED_FORWARD[get_chip(space.chip_model)[0].name]
+    names = [n for n in start if n.split(".")[0] in ff]
+    x0 = np.log([max(start[n], 1) for n in names])
+
+    def values_of(x: np.ndarray) -> dict[str, int]:
+        out = dict(start)
+        for n, v in zip(names, x, strict=True):
+            spec = space.space[n]
+            out[n] = int(min(max(round(float(np.exp(v))), max(spec.low, 1)), spec.high))
+        return out
+
+    t0 = time.perf_counter()
+    errors = TaskErrors(problem, limits, space.make_params(start).sets, plants)
+    seen: dict[tuple, tuple[float, str]] = {}
+
+    def ratio_of(values: dict[str, int]) -> tuple[float, str]:
+        key = tuple(values[n] for n in names)
+        if key not in seen:
+            seen[key] = errors.ratio(space.make_params(values).sets, workers)
+            print(f"  ff {dict(zip(names, key, strict=True))}: {seen[key][0]:.3f} "
+                  f"({seen[key][1]})", flush=True)  # fmt: skip
+        return seen[key]
+
+    class _Done(Exception):
+        pass
+
+    best: dict[str, Any] = {}
+
+    def objective(x: np.ndarray) -> float:
+        v = values_of(x)
+        r, where = ratio_of(v)
+        if not best or r < best["ratio"]:
+            best.update(values=v, ratio=r, where=where)
+        if r <= target or len(seen) >= max_evals:
+            raise _Done
+        return r
+
+    r0, where0 = ratio_of(start)
+    out: dict[str, Any] = {"start_ratio": r0, "start_where": where0}
+    best.update(values=dict(start), ratio=r0, where=where0)
+    if r0 > target:
+        # steps of about 20 % in every register (Nelder-Mead's own first steps are 5 %)
+        simplex = np.vstack([x0] + [x0 + 0.2 * np.eye(len(x0))[i] for i in range(len(x0))])
+        options = {"xatol": 0.005, "fatol": 1e-3, "maxfev": max_evals, "initial_simplex": simplex}
+        with contextlib.suppress(_Done):
+            scipy.optimize.minimize(objective, x0, method="Nelder-Mead", options=options)
+    found = best["ratio"] <= target
+    out.update(values=best["values"] if found else None, best=best["values"],
+               ratio=best["ratio"], where=best["where"], evaluations=len(seen),
+               search_s=time.perf_counter() - t0)  # fmt: skip
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="TwoLinkArm")
