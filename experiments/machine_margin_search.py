@@ -237,8 +237,10 @@ class TaskErrors:
                 fe = max(m.max_following_error for m in ms)
                 ticks = max(sum(m.n_ticks for m in ms), 1)
                 sat = sum(m.saturation_fraction * m.n_ticks for m in ms) / ticks
-                for r, what in ((fe / fe_max[a], f"following error {fe:.0f} / {fe_max[a]:.0f}"),
-                                (sat / self.limits.max_saturation, f"saturation {sat:.3f}")):
+                for r, what in (
+                    (fe / fe_max[a], f"following error {fe:.0f} / {fe_max[a]:.0f}"),
+                    (sat / self.limits.max_saturation, f"saturation {sat:.3f}"),
+                ):
                     if r > worst:
                         worst, where = float(r), f"plant {k + 1}, axis {a + 1}: {what}"
         return worst, where
