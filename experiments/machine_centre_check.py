@@ -23,7 +23,11 @@ by a search on the check's linear analysis (``machine_margin_search.py``; no sim
 label (a candidate replacement; ``oracle:<label>:<point>``: the set tuned for that point);
 ``--sets ff:<sets>`` checks the set of ``<sets>``'s lines with its feed-forward registers
 fitted on the check's tasks until their following error clears its limit at every point
-(the loop gains, and so the margins, kept: ``machine_margin_search.fit_feed_forward``);
+(the loop gains, and so the margins, kept: ``machine_margin_search.fit_feed_forward``;
+``ff-t<target>:<sets>`` fits until the worst following error / limit is ``<target>``
+(or for 60 candidates, keeping the best if it is under :data:`FF_TARGET`) instead of
+:data:`FF_TARGET`, for a set whose contouring error, which follows the following
+error, makes its episodes costly);
 ``--sets detuned`` checks the centre with its loop gain scaled down
 (:data:`DETUNE_REGISTERS` times each of :data:`DETUNE_SCALES` in turn, the heaviest point
 first) until a scale passes at every point: what an engineer does with a set that rings,
@@ -46,6 +50,8 @@ if str(Path(__file__).parent) not in sys.path:
     sys.path.insert(0, str(Path(__file__).parent))
 
 import schedule_oracle as so
+
+from servogym._registration import id_version
 
 RESULTS = Path(__file__).parent / "results" / "schedule"
 
@@ -135,20 +141,20 @@ def main() -> None:
     )  # fmt: skip
     args = ap.parse_args()
     if args.costs:
-        from servogym._registration import MACHINE_VERSIONS
+        from servogym._registration import MACHINE_SCHEDULE_VERSIONS
 
-        for version in MACHINE_VERSIONS:
+        for version in MACHINE_SCHEDULE_VERSIONS:
             for eid in machine_ids(version):
                 print(f"{eid}: {zero_action_cost(eid):.3g} per move at the zero action", flush=True)
         return
     if args.points < 2:
         raise SystemExit(f"--points must be >= 2; got --points {args.points}.")
     if args.sets not in ("centre", "detuned", "margins") and not args.sets.startswith(
-        ("oracle:", "margins:oracle:", "ff:")
+        ("oracle:", "margins:oracle:", "ff:", "ff-t")
     ):
         raise SystemExit(
             f"--sets must be centre, detuned, margins, margins:oracle:<label>:<point>, "
-            f"ff:<sets> or oracle:<label>[:<point>]; got --sets {args.sets}."
+            f"ff[-t<target>]:<sets> or oracle:<label>[:<point>]; got --sets {args.sets}."
         )
     ids = args.ids.split(",") if args.ids else machine_ids(args.version)
     done: dict[tuple, dict[str, Any]] = {}
@@ -174,7 +180,7 @@ def main() -> None:
             else:
                 print(f"{eid}: no scale down to {DETUNE_SCALES[-1]} passes", flush=True)
             continue
-        if args.sets.startswith("ff:"):
+        if args.sets.startswith(("ff:", "ff-t")):
             feed_forward(args, done, eid, s, points)
             continue
         if args.sets.startswith("margins"):
@@ -203,11 +209,16 @@ def main() -> None:
                 record_for_oracle(s, label, values, points, args)
             continue
         if args.sets == "centre":
-            values = so.machine_center(s)
+            values = so.machine_center(s, id_version(eid.strip()))
         else:
             values = oracle_set(s, args.sets.split(":", 1)[1], args.oracle)
         for i, v in enumerate(points):
             _run(args, done, eid, s, args.sets, values, i, v)
+
+
+FF_TARGET = 0.85
+"""The worst following error / its limit (and saturation / its maximum) that ``--sets ff:``
+fits the feed-forward to: 15 % below the check's limits."""
 
 
 def feed_forward(args, done: dict, eid: str, s, points: list[float]) -> bool:
@@ -218,6 +229,8 @@ def feed_forward(args, done: dict, eid: str, s, points: list[float]) -> bool:
     from machine_margin_search import fit_feed_forward
 
     label, source = args.sets, args.sets.split(":", 1)[1]
+    head = label.split(":", 1)[0]  # ff (the default target) or ff-t<target>
+    target = float(head[len("ff-t") :]) if head.startswith("ff-t") else FF_TARGET
     prev = [done.get((eid, label, args.points, i)) for i in range(len(points))]
     values = next((p["values"] for p in prev if p), None)
     extra: dict[str, Any] = {}
@@ -229,7 +242,8 @@ def feed_forward(args, done: dict, eid: str, s, points: list[float]) -> bool:
                              f"{args.out} (check that set first).")  # fmt: skip
         config = so._config(s, so.point_args(args.workers), points[0])
         fit = fit_feed_forward(config.problem(), config.check_limits(), start,
-                               plants=[{s.param: float(p)} for p in points],
+                               plants=[{s.param: float(p)} for p in points], target=target,
+                               accept=FF_TARGET, max_evals=60,
                                workers=args.workers)  # fmt: skip
         extra = {"feed_forward": {k: w for k, w in fit.items() if k not in ("values", "best")}}
         print(f"{eid}: feed-forward fit from {source}: worst ratio {fit['start_ratio']:.3g} "

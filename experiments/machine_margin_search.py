@@ -253,16 +253,18 @@ def fit_feed_forward(
     *,
     plants: list[dict],
     target: float = 0.85,
+    accept: float | None = None,
     max_evals: int = 80,
     workers: int = 1,
 ) -> dict[str, Any]:
     """Nelder-Mead on the log feed-forward registers (:data:`FEED_FORWARD`, every axis's) of
     ``start`` until the worst of following error / limit and saturation / maximum over the
     check's tasks at every plant of ``plants`` (:class:`TaskErrors`) is at most ``target``.
-    The feedback gains are kept, so the margins are those of ``start``. Returns
-    ``{"values": the set found or None, "ratio", "where", "start_ratio", "start_where",
-    "evaluations", "search_s"}`` (without a set found, ``ratio`` is the best reached and
-    ``values`` its set is under ``"best"``)."""
+    The feedback gains are kept, so the margins are those of ``start``. When ``target`` is
+    not reached in ``max_evals`` candidates, the best is kept if its ratio is at most
+    ``accept`` (default: ``target``). Returns ``{"values": the set found or None, "ratio",
+    "where", "start_ratio", "start_where", "evaluations", "search_s", "best"}`` (``best``:
+    the set of the best ratio reached, found or not)."""
     import scipy.optimize
 
     from servogym.chips._family import get_chip
@@ -314,7 +316,7 @@ def fit_feed_forward(
         options = {"xatol": 0.005, "fatol": 1e-3, "maxfev": max_evals, "initial_simplex": simplex}
         with contextlib.suppress(_Done):
             scipy.optimize.minimize(objective, x0, method="Nelder-Mead", options=options)
-    found = best["ratio"] <= target
+    found = best["ratio"] <= (target if accept is None else max(target, accept))
     out.update(values=best["values"] if found else None, best=best["values"],
                ratio=best["ratio"], where=best["where"], evaluations=len(seen),
                search_s=time.perf_counter() - t0)  # fmt: skip

@@ -209,11 +209,12 @@ def _is_machine(s) -> bool:
     return is_machine(s.plant)
 
 
-def machine_center(s) -> dict[str, int]:
-    """The machine id's centre, every axis's registers (``kp.1``, ``kp.2``)."""
-    from servogym.envs._machine import MACHINE_CENTERS, axis_register
+def machine_center(s, version: int = 1) -> dict[str, int]:
+    """The machine id's centre, every axis's registers (``kp.1``, ``kp.2``): the ``-v1``
+    id's, or with ``version=2`` the ``-v2`` id's (the checked one)."""
+    from servogym.envs._machine import MACHINE_CENTER_VERSIONS, axis_register
 
-    sets = MACHINE_CENTERS[(s.family, s.plant)]
+    sets = MACHINE_CENTER_VERSIONS[version][(s.family, s.plant)]
     return {axis_register(k, n): int(v) for k, d in enumerate(sets, 1) for n, v in d.items()}
 
 

@@ -20,16 +20,32 @@ REWARD_SCALE_V1 = 0.01
 """The ``reward_scale`` of the ``-v1`` ids (the env classes' own default, and the ``-v0``
 ids', is 1.0: raw rewards)."""
 
-VERSIONS: dict[int, dict[str, float]] = {0: {}, 1: {"reward_scale": REWARD_SCALE_V1}}
+VERSIONS: dict[int, dict[str, float]] = {
+    0: {},
+    1: {"reward_scale": REWARD_SCALE_V1},
+    2: {"reward_scale": REWARD_SCALE_V1, "machine_centers": 2},
+}
 """Version -> the keyword arguments its ids pass on top of the env classes' defaults. ``-v0``:
-the envs as first released (rewards are minus the cost); ``-v1``: rewards times 0.01. The
-Version History of ``TuneEnv`` and ``ScheduleEnv`` (docs/envs.md) says what each changed."""
+the envs as first released (rewards are minus the cost); ``-v1``: rewards times 0.01;
+``-v2`` (the multi-axis plants' Schedule ids only): the residual action acts around the
+centres that pass the multi-axis check at every point of the cycle
+(``servogym.envs._machine.MACHINE_CENTERS_V2``). The Version History of ``TuneEnv`` and
+``ScheduleEnv`` (docs/envs.md) says what each changed."""
+
+PLANT_VERSIONS: tuple[int, ...] = (0, 1)
+"""The versions the single-axis plants' ids (both kinds) exist in."""
 
 SCENARIO_VERSIONS: tuple[int, ...] = (1,)
 """The versions the gain-scheduling scenario ids exist in (they were added with ``-v1``)."""
 
 MACHINE_VERSIONS: tuple[int, ...] = (1,)
-"""The versions the multi-axis plants' ids exist in (they were added with ``-v1``)."""
+"""The versions the multi-axis plants' ids of both kinds exist in (they were added with
+``-v1``)."""
+
+MACHINE_SCHEDULE_VERSIONS: tuple[int, ...] = (1, 2)
+"""The versions the multi-axis plants' ``Schedule`` ids exist in: :data:`MACHINE_VERSIONS`
+and ``-v2``, whose safe centres pass the multi-axis check (a ``Tune`` id has no centre, so
+it has no ``-v2``)."""
 
 ENTRY_POINTS = {
     "Tune": "servogym._registration:make_tune_env",
@@ -136,17 +152,18 @@ def register(
     family_id: str,
     default_model: str,
     plant: str,
-    versions: tuple[int, ...] | None = None,
+    versions: tuple[int, ...] = PLANT_VERSIONS,
+    kinds: tuple[str, ...] = tuple(ENTRY_POINTS),
 ) -> list[str]:
-    """Register both kinds for one chip family and plant family, in every version of
-    ``versions`` (default: every one of :data:`VERSIONS`; idempotent); return the ids."""
+    """Register ``kinds`` (default: both) for one chip family and plant family, in every
+    version of ``versions`` (default: :data:`PLANT_VERSIONS`; idempotent); return the ids."""
     import gymnasium as gym
 
     ids = []
-    for version, defaults in VERSIONS.items():
-        if versions is not None and version not in versions:
-            continue
-        for kind, entry_point in ENTRY_POINTS.items():
+    for version in versions:
+        defaults = VERSIONS[version]
+        for kind in kinds:
+            entry_point = ENTRY_POINTS[kind]
             eid = make_id(kind, family_id, plant, version)
             ids.append(eid)
             _ID_PARTS[eid] = (kind, family, plant)
@@ -164,6 +181,15 @@ def register(
                     disable_env_checker=False,
                 )
     return ids
+
+
+def register_machine(family: str, family_id: str, default_model: str, plant: str) -> list[str]:
+    """Register the ids of a multi-axis plant: both kinds in :data:`MACHINE_VERSIONS`, the
+    ``Schedule`` ids also in the rest of :data:`MACHINE_SCHEDULE_VERSIONS` (idempotent);
+    return the ids."""
+    ids = register(family, family_id, default_model, plant, MACHINE_VERSIONS)
+    later = tuple(v for v in MACHINE_SCHEDULE_VERSIONS if v not in MACHINE_VERSIONS)
+    return ids + register(family, family_id, default_model, plant, later, ("Schedule",))
 
 
 SCENARIOS: dict[str, tuple[str, str, str]] = {
@@ -217,7 +243,7 @@ def register_builtin() -> list[str]:
         eid
         for family, (family_id, model) in BUILTIN_FAMILIES.items()
         for plant in BUILTIN_MACHINE_PLANTS
-        for eid in register(family, family_id, model, plant, MACHINE_VERSIONS)
+        for eid in register_machine(family, family_id, model, plant)
     ]
     for name, (family, model, plant) in SCENARIOS.items():
         ids += register_scenario(name, family, BUILTIN_FAMILIES[family][0], model, plant)

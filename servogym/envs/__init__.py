@@ -93,12 +93,8 @@ def register_envs() -> list[str]:
         eid
         for family in families().values()
         for plant in MULTI_PLANTS
-        for eid in _registration.register(
-            family.name,
-            family_id_name(family),
-            default_model(family),
-            plant,
-            _registration.MACHINE_VERSIONS,
+        for eid in _registration.register_machine(
+            family.name, family_id_name(family), default_model(family), plant
         )
     ]
     for s in SCENARIOS.values():

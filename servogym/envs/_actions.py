@@ -217,8 +217,14 @@ class UnitActions:
             ValueError: for a register the action does not set, with another value than the
                 env uses for it.
         """
+        return self.unit_form(values).astype(np.float32)
+
+    def unit_form(self, values: Mapping[str, int]) -> np.ndarray:
+        """:meth:`from_values` in float64: the unit form that maps back to ``values`` exactly
+        where float32 cannot resolve it (a 31-bit integration limit); raises as
+        :meth:`from_values`."""
         full = _baseline_values(self, values)
-        return np.array([s.to_unit(full[s.name]) for s in self.specs], dtype=np.float32)
+        return np.array([s.to_unit(full[s.name]) for s in self.specs], dtype=np.float64)
 
 
 class RawActions:
@@ -315,13 +321,14 @@ class ResidualActions:
         self.family, self.chip_model = family, chip_model
         self.specs, self.fixed, self.names = self.unit.specs, self.unit.fixed, self.unit.names
         self.space = self.unit.space
-        self.center = self.unit.from_values(center).astype(np.float64)
+        # float64: the zero action is the centre to the count, even a 31-bit register's
+        self.center = self.unit.unit_form(center)
         self.center_values = self.unit.to_values(self.center)
         self.scale = float(scale)
 
     def set_center(self, center: Mapping[str, Any]) -> None:
         """Act around another set from now on (a gain table's row: ``center_table``)."""
-        self.center = self.unit.from_values(center).astype(np.float64)
+        self.center = self.unit.unit_form(center)
         self.center_values = self.unit.to_values(self.center)
 
     def absolute(self, action: Any) -> np.ndarray:
@@ -344,7 +351,7 @@ class ResidualActions:
     def from_values(self, values: Mapping[str, int]) -> np.ndarray:
         """The action closest to ``values`` (clipped to the box: a set further than
         ``scale`` from the centre is out of reach); raises as :meth:`UnitActions.from_values`."""
-        u = self.unit.from_values(values).astype(np.float64)
+        u = self.unit.unit_form(values)
         return np.clip((u - self.center) / self.scale, -1.0, 1.0).astype(np.float32)
 
 

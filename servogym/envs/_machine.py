@@ -416,6 +416,147 @@ the family's servobench-v1 best-known sets put on every axis; the mean cost per 
 seeded 4-move episodes; results in ``experiments/results/schedule/machine_centres.jsonl``).
 Where both axes hold one set, a servobench set put on both axes was the best found."""
 
+MACHINE_CENTERS_V2: dict[tuple[str, str], tuple[dict[str, int], ...]] = {
+    # servogym/Schedule-PMAC-TwoLinkArm-v1: --sets ff-t0.05:held:margins
+    ("pmac", "two-link-arm"): (
+        {
+            "notch_n1": 0,
+            "notch_n2": 0,
+            "notch_d1": 0,
+            "notch_d2": 0,
+            "proportional_gain": 25512,
+            "derivative_gain": 2725,
+            "velocity_ff": 2737,
+            "integral_gain": 147889,
+            "acceleration_ff": 9707,
+            "friction_ff": 0,
+        },
+        {
+            "notch_n1": 0,
+            "notch_n2": 0,
+            "notch_d1": 0,
+            "notch_d2": 0,
+            "proportional_gain": 20452,
+            "derivative_gain": 1664,
+            "velocity_ff": 1638,
+            "integral_gain": 191915,
+            "acceleration_ff": 6151,
+            "friction_ff": 0,
+        },
+    ),
+    # servogym/Schedule-PMAC-XyStage-v1: --sets ff:held:margins
+    ("pmac", "xy-stage"): (
+        {
+            "notch_n1": 0,
+            "notch_n2": 0,
+            "notch_d1": 0,
+            "notch_d2": 0,
+            "proportional_gain": 36306,
+            "derivative_gain": 1274,
+            "velocity_ff": 1433,
+            "integral_gain": 661407,
+            "acceleration_ff": 6690,
+            "friction_ff": 0,
+        },
+        {
+            "notch_n1": 0,
+            "notch_n2": 0,
+            "notch_d1": 0,
+            "notch_d2": 0,
+            "proportional_gain": 134896,
+            "derivative_gain": 2293,
+            "velocity_ff": 2085,
+            "integral_gain": 215985,
+            "acceleration_ff": 9030,
+            "friction_ff": 0,
+        },
+    ),
+    # servogym/Schedule-PMD-TwoLinkArm-v1: --sets margins:oracle:cycle-robust-150:robust
+    ("pmd", "two-link-arm"): (
+        {
+            "kp": 701,
+            "ki": 1937,
+            "kd": 3160,
+            "kvff": 0,
+            "kaff": 2828,
+            "kout": 639,
+            "integration_limit": 134335376,
+            "derivative_time": 3,
+            "bias": 22683,
+        },
+        {
+            "kp": 597,
+            "ki": 768,
+            "kd": 5481,
+            "kvff": 27,
+            "kaff": 19037,
+            "kout": 415,
+            "integration_limit": 150,
+            "derivative_time": 2,
+            "bias": 0,
+        },
+    ),
+    # servogym/Schedule-PMD-XyStage-v1: --sets margins
+    ("pmd", "xy-stage"): (
+        {
+            "kp": 956,
+            "ki": 4789,
+            "kd": 14421,
+            "kvff": 0,
+            "kaff": 3229,
+            "kout": 647,
+            "integration_limit": 11042,
+            "derivative_time": 1,
+            "bias": 296,
+        },
+        {
+            "kp": 1241,
+            "ki": 4507,
+            "kd": 26812,
+            "kvff": 0,
+            "kaff": 3229,
+            "kout": 1787,
+            "integration_limit": 11042,
+            "derivative_time": 1,
+            "bias": 296,
+        },
+    ),
+    # servogym/Schedule-Parker6K-TwoLinkArm-v1: --sets margins
+    ("parker6k", "two-link-arm"): (
+        {"sgp": 906028, "sgi": 9999999, "sgv": 1976, "sgvf": 1188, "sgaf": 155},
+        {"sgp": 869590, "sgi": 9999999, "sgv": 1453, "sgvf": 1188, "sgaf": 155},
+    ),
+    # servogym/Schedule-Parker6K-XyStage-v1: --sets ff:margins-t0.1-w5
+    ("parker6k", "xy-stage"): (
+        {"sgp": 1408774, "sgi": 9999999, "sgv": 2608, "sgvf": 3345, "sgaf": 160},
+        {"sgp": 1187463, "sgi": 9999999, "sgv": 5180, "sgvf": 3345, "sgaf": 133},
+    ),
+}
+"""(chip family, multi-axis plant) -> per axis, the register values of the ``-v2`` Schedule
+ids' safe centre (``ScheduleEnv(machine_centers=2)``): a set that passes the multi-axis
+check (``servogym check``'s cases: the reference integration, every loop-latency and
+sequencing choice, the load at +-20 % and the friction at +-50 %, each with its closed-loop
+stability, margins, following error and saturation) at three operating points of the id's
+cycle (the payload at the empty gripper, the log-middle and the part range's high end,
+the other parameters nominal). Each comment names the ``--sets`` of
+``experiments/machine_centre_check.py`` whose lines in
+``experiments/results/schedule/machine_centre_checks.jsonl`` hold the check
+(``tests/envs/test_multi_envs.py`` holds every centre to those lines): ``margins``, the
+``-v1`` centre moved into the check's margins at the three points at once by a search on
+the check's linear analysis; ``held:``, checked with the machine's held registers
+(:data:`MACHINE_REGISTERS`); ``ff:``, with the feed-forward registers then fitted on the
+check's tasks until the following error cleared its limit (the loop gains, and so the
+margins, kept); ``margins:oracle:cycle-robust-150:robust``, the two-link arm's robust set
+of ``experiments/schedule_oracle.py`` tuned over the cycle and moved into the margins."""
+
+MACHINE_CENTER_VERSIONS: dict[int, dict[tuple[str, str], tuple[dict[str, int], ...]]] = {
+    1: MACHINE_CENTERS,
+    2: MACHINE_CENTERS_V2,
+}
+"""``machine_centers`` of :class:`~servogym.envs.ScheduleEnv` -> the table of machine
+centres it takes: 1, :data:`MACHINE_CENTERS` (the ``-v1`` ids); 2, :data:`MACHINE_CENTERS_V2`
+(the ``-v2`` ids)."""
+
 
 def cycle_sweep(
     starts: Sequence[float], moves: Sequence[Sequence[MoveSpec]], cycle: MachineCycle

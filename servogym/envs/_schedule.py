@@ -20,7 +20,7 @@ from servogym.envs._common import (
     options_plant_values,
 )
 from servogym.envs._machine import (
-    MACHINE_CENTERS,
+    MACHINE_CENTER_VERSIONS,
     MACHINE_CYCLES,
     MachineCycle,
     axis_register,
@@ -227,14 +227,24 @@ class ScheduleEnv(gym.Env):
     | `center` | the scenario's or nominal set | dict (int) | zero action of `"residual"` |
     | `residual_scale` | 0.25 | float (1) | reach of a `"residual"` action (unit form) |
     | `center_table` | `None` | list of (float, dict) | gain table: centre per move (below) |
+    | `machine_centers` | 1 (`-v2` ids: 2) | int | a machine's default centres (below) |
 
     ``center_table`` (with ``action_type="residual"``, single-axis plants): a gain table of
     ``(operating point, register values)`` rows; before each move the residual's zero action
     is the set of the point nearest, in log scale, to the coming move's load (what
     ``servogym.agents.GainTablePolicy`` runs), so a policy refines a gain table.
 
+    ``machine_centers`` (multi-axis plants): which table the default ``center`` comes from,
+    1 (``MACHINE_CENTERS``: searched on episode cost, the ``-v1`` ids) or 2
+    (``MACHINE_CENTERS_V2``: sets that pass the multi-axis check at every point of the
+    cycle, the ``-v2`` ids); an explicit ``center`` wins over either.
+
     ## Version History
 
+    * v2: The multi-axis plants' Schedule ids only (``Schedule-<Family>-TwoLinkArm-v2``,
+      ``...-XyStage-v2``): the residual action's zero is a set that passes the multi-axis
+      check at every point of the cycle (``machine_centers=2``); v1's centres were searched
+      on episode cost, and none passes the check everywhere.
     * v1: Rewards are scaled by 0.01 by default (``reward_scale=0.01``, the factor
       ``servogym train`` applied itself before; ``info["raw_reward"]`` is the unscaled
       reward). The gain-scheduling scenario ids (``Schedule-<Family>-<Scenario>-v1``) are
@@ -280,6 +290,7 @@ class ScheduleEnv(gym.Env):
         center: Mapping[str, Any] | None = None,
         residual_scale: float = DEFAULT_RESIDUAL_SCALE,
         center_table: Any = None,
+        machine_centers: int = 1,
     ) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(
@@ -292,6 +303,11 @@ class ScheduleEnv(gym.Env):
             raise ValueError(
                 "give center (one set) or center_table (a gain table), not both; got "
                 f"center={dict(center)!r:.80} and a center_table."
+            )
+        if isinstance(machine_centers, bool) or machine_centers not in MACHINE_CENTER_VERSIONS:
+            raise ValueError(
+                f"machine_centers must be one of {sorted(MACHINE_CENTER_VERSIONS)} (the table "
+                f"of multi-axis centres); got machine_centers={machine_centers!r}."
             )
         self.render_mode = render_mode
         self.n_moves = n_moves
@@ -387,7 +403,7 @@ class ScheduleEnv(gym.Env):
         if action_type is None:
             action_type = "unit"
         if center is None and action_type == "residual":
-            center = default_center(self.chip.name, self.scenario.plant)
+            center = default_center(self.chip.name, self.scenario.plant, machine_centers)
         if action_type == "stored":
             action_type = stored_set_actions(self.scenario.chip_model, preset)
         table = None
@@ -587,12 +603,13 @@ class ScheduleEnv(gym.Env):
         return response_rgb(runs, title=title)
 
 
-def default_center(family: str, plant: str) -> Any:
+def default_center(family: str, plant: str, machine_centers: int = 1) -> Any:
     """The safe set a residual action acts around by default: the hand-tuned nominal set of
     a single-axis plant (``servogym.agents.nominal_set``), a machine's per-axis sets
-    (:data:`~servogym.envs._machine.MACHINE_CENTERS`); ``None`` when there is none."""
+    (:data:`~servogym.envs._machine.MACHINE_CENTER_VERSIONS`, table ``machine_centers``);
+    ``None`` when there is none."""
     if is_machine(plant):
-        return MACHINE_CENTERS.get((family, plant))
+        return MACHINE_CENTER_VERSIONS[machine_centers].get((family, plant))
     from servogym.agents._baselines import nominal_set
 
     return nominal_set(family, plant)

@@ -17,6 +17,10 @@ from servogym.agents._train import effective_reward_scale
 from servogym.envs import SCENARIOS, registered_ids
 
 SCENARIO_IDS = [i for i in registered_ids() if any(i.endswith(f"-{n}-v1") for n in SCENARIOS)]
+MACHINE_V2_IDS = [
+    i for i in registered_ids() if i.startswith("servogym/Schedule-") and i.endswith("-v2")
+]
+"""The multi-axis machines' Schedule ids of -v2 (checked centres)."""
 HYPERPARAMS = Path(__file__).resolve().parents[2] / "servogym" / "agents" / "hyperparams"
 
 
@@ -79,8 +83,9 @@ def test_run_episodes_reports_raw_returns_whatever_the_scale():
 def test_rl_zoo_hyperparameters_name_registered_ids(algo):
     conf = yaml.safe_load((HYPERPARAMS / f"{algo}.yml").read_text())
     ids = [k for k in conf if k != "default"]
-    assert set(ids) <= set(SCENARIO_IDS)
+    named = set(SCENARIO_IDS) | set(MACHINE_V2_IDS)
+    assert set(ids) <= named and len(MACHINE_V2_IDS) == 6
     discrete = {i for i in SCENARIO_IDS if i.endswith("-StoredSets-v1")}
-    assert set(ids) == (set(SCENARIO_IDS) - discrete if algo == "sac" else set(SCENARIO_IDS))
+    assert set(ids) == (named - discrete if algo == "sac" else named)
     for eid in ids:
         assert conf[eid]["policy"] == "MlpPolicy" and conf[eid]["n_timesteps"] > 0

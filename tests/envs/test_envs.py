@@ -48,7 +48,12 @@ def _rollout(eid: str, seed: int, n_episodes: int = 2) -> tuple[list, list]:
 
 
 def test_registry_has_every_kind_family_plant_and_version():
-    from servogym._registration import MACHINE_VERSIONS, SCENARIO_VERSIONS
+    from servogym._registration import (
+        MACHINE_SCHEDULE_VERSIONS,
+        MACHINE_VERSIONS,
+        PLANT_VERSIONS,
+        SCENARIO_VERSIONS,
+    )
     from servogym.plants import MULTI_PLANTS
 
     expected = {
@@ -56,7 +61,7 @@ def test_registry_has_every_kind_family_plant_and_version():
         for kind in ("Tune", "Schedule")
         for fam in families().values()
         for plant in PLANTS
-        for version in envs.VERSIONS
+        for version in PLANT_VERSIONS
     }
     expected |= {
         f"servogym/Schedule-{envs.family_id_name(families()[s.family])}-{name}-v{version}"
@@ -70,9 +75,18 @@ def test_registry_has_every_kind_family_plant_and_version():
         for plant in MULTI_PLANTS
         for version in MACHINE_VERSIONS
     }
+    expected |= {  # and their Schedule ids' -v2 (checked centres)
+        envs.env_id("Schedule", fam, plant, version)
+        for fam in families().values()
+        for plant in MULTI_PLANTS
+        for version in MACHINE_SCHEDULE_VERSIONS
+    }
     assert set(IDS) == expected
     assert {"servogym/Tune-PMD-VerticalAxis-v0", "servogym/Tune-PMD-VerticalAxis-v1"} <= set(IDS)
-    assert sorted(envs.VERSIONS) == [0, 1] and envs.VERSION == 1
+    assert "servogym/Schedule-PMD-XyStage-v2" in IDS and "servogym/Tune-PMD-XyStage-v2" not in IDS
+    assert not any(i.endswith("-v2") for i in IDS if "TwoLinkArm" not in i and "XyStage" not in i)
+    assert sorted(envs.VERSIONS) == [0, 1, 2] and envs.VERSION == 1
+    assert PLANT_VERSIONS == (0, 1) and MACHINE_SCHEDULE_VERSIONS == (1, 2)
 
 
 @pytest.mark.parametrize("eid", IDS)

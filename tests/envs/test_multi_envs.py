@@ -8,8 +8,10 @@ never from a hand-written list.
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -19,7 +21,9 @@ import servogym.envs as envs
 from servogym import _registration
 from servogym.chips._family import families
 from servogym.envs._machine import (
+    MACHINE_CENTER_VERSIONS,
     MACHINE_CENTERS,
+    MACHINE_CENTERS_V2,
     MACHINE_CYCLES,
     MachineScenario,
     axis_register,
@@ -34,6 +38,12 @@ MACHINE_IDS = [
     for fam in families().values()
     for plant in MULTI_PLANTS
     for version in _registration.MACHINE_VERSIONS
+] + [
+    envs.env_id("Schedule", fam, plant, version)
+    for fam in families().values()
+    for plant in MULTI_PLANTS
+    for version in _registration.MACHINE_SCHEDULE_VERSIONS
+    if version not in _registration.MACHINE_VERSIONS
 ]
 TUNE_IDS = [i for i in MACHINE_IDS if "/Tune-" in i]
 SCHEDULE_IDS = [i for i in MACHINE_IDS if "/Schedule-" in i]
@@ -66,7 +76,9 @@ def test_every_family_has_tune_and_schedule_ids_on_every_machine_from_v1():
     assert tuple(MULTI_PLANTS) == _registration.BUILTIN_MACHINE_PLANTS
     assert _registration.MACHINE_VERSIONS == (1,)
     ids = envs.registered_ids()
-    assert set(MACHINE_IDS) <= set(ids) and len(MACHINE_IDS) == 2 * 3 * 2
+    assert set(MACHINE_IDS) <= set(ids) and len(MACHINE_IDS) == 2 * 3 * 2 + 3 * 2
+    assert _registration.MACHINE_SCHEDULE_VERSIONS == (1, 2)
+    assert "servogym/Schedule-PMAC-XyStage-v2" in ids and "servogym/Tune-PMAC-XyStage-v2" not in ids
     assert "servogym/Tune-PMD-TwoLinkArm-v1" in ids  # the scheme: plant_id_name
     assert "servogym/Schedule-Parker6K-XyStage-v1" in ids
     assert not any(i.endswith(("TwoLinkArm-v0", "XyStage-v0")) for i in ids)
@@ -259,7 +271,7 @@ def test_schedule_table_names_the_observation_entries():
 @pytest.mark.parametrize("eid", SCHEDULE_IDS)
 def test_schedule_acts_around_a_safe_centre(eid):
     env = _make(eid, n_moves=4)
-    centre = MACHINE_CENTERS[(env.chip.name, env.scenario.plant)]
+    centre = MACHINE_CENTER_VERSIONS[envs.id_version(eid)][(env.chip.name, env.scenario.plant)]
     assert len(centre) == len(env.axes)
     zero = np.zeros(env.action_space.shape, np.float32)
     for k, values in enumerate(env.actions.axis_values(zero)):
@@ -273,6 +285,70 @@ def test_schedule_acts_around_a_safe_centre(eid):
             assert info["cost"] < 100.0
     unit = _make(eid, action_type="unit", n_moves=4)
     assert unit.action_space == env.action_space
+
+
+CHECKS = Path(__file__).parents[2] / "experiments" / "results" / "schedule"
+CHECKS = CHECKS / "machine_centre_checks.jsonl"
+
+
+def _passed_everywhere(eid: str) -> list[dict]:
+    """Per ``--sets`` label of ``experiments/machine_centre_check.py`` that passed the check
+    at every one of its points on ``eid``, one of its lines."""
+    by_label: dict[tuple, list[dict]] = {}
+    for line in CHECKS.read_text().splitlines():
+        r = json.loads(line)
+        if r["env_id"] == eid:
+            by_label.setdefault((r["sets"], r["points"]), []).append(r)
+    return [
+        rs[0]
+        for (_, n), rs in by_label.items()
+        if {r["point"] for r in rs if r["passed"]} == set(range(n))
+        and len({json.dumps(r["values"], sort_keys=True) for r in rs}) == 1
+    ]
+
+
+@pytest.mark.parametrize("key", sorted(MACHINE_CENTERS_V2))
+def test_every_v2_centre_is_a_set_that_passed_the_check_at_every_point(key):
+    """The set a -v2 id runs at the zero action, every register of every axis (the action's,
+    the held ones, the chip defaults), is one the multi-axis check passed at every operating
+    point of the id's cycle (the lines in CHECKS, of the -v1 id the checks ran on)."""
+    family, plant = key
+    fam = families()[family]
+    v2 = _make(envs.env_id("Schedule", fam, plant, 2))
+    zero = np.zeros(v2.action_space.shape, np.float32)
+    sets = v2.actions.to_params(zero)  # one parameter set per axis
+
+    def runs(values: dict) -> bool:
+        for name, value in values.items():
+            register, _, axis = name.rpartition(".")
+            axes = [int(axis) - 1] if axis.isdigit() else range(len(sets))
+            register = register if axis.isdigit() else name
+            if any(getattr(sets[k], register) != value for k in axes):
+                return False
+        return True
+
+    checked = _passed_everywhere(envs.env_id("Schedule", fam, plant, 1))
+    assert any(runs(r["values"]) and len(r["values"]) >= 5 * len(sets) for r in checked), key
+    assert (
+        not runs(
+            {f"{n}.{k}": v for k, d in enumerate(MACHINE_CENTERS[key], 1) for n, v in d.items()}
+        )
+        or MACHINE_CENTERS[key] == MACHINE_CENTERS_V2[key]
+    )  # the test tells the sets apart
+
+
+def test_machine_centers_keyword_is_checked_and_an_explicit_centre_wins():
+    with pytest.raises(
+        ValueError, match=r"machine_centers must be one of \[1, 2\].*got machine_centers=3"
+    ):
+        _make("servogym/Schedule-PMD-XyStage-v2", machine_centers=3)
+    v1 = _make("servogym/Schedule-PMD-XyStage-v1", machine_centers=2)
+    v2 = _make("servogym/Schedule-PMD-XyStage-v2")
+    zero = np.zeros(v1.action_space.shape, np.float32)
+    assert v1.actions.to_values(zero) == v2.actions.to_values(zero)
+    given = {"kp": 900}
+    v2c = _make("servogym/Schedule-PMD-XyStage-v2", center=given)
+    assert all(v["kp"] == 900 for v in v2c.actions.axis_values(zero))
 
 
 # --- unstable gains: a finite, documented penalty --------------------------------------------

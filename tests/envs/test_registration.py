@@ -51,9 +51,13 @@ def test_import_servogym_registers_every_id_without_loading_the_simulator():
     )
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["ids"] == envs.registered_ids()
-    n_versions = len(_registration.VERSIONS)
+    n_versions = len(_registration.PLANT_VERSIONS)
     n_scenario_ids = len(envs.SCENARIOS) * len(_registration.SCENARIO_VERSIONS)
-    n_machine_ids = 2 * len(families()) * len(MULTI_PLANTS) * len(_registration.MACHINE_VERSIONS)
+    n_machine_ids = (
+        len(families())
+        * len(MULTI_PLANTS)
+        * (len(_registration.MACHINE_VERSIONS) + len(_registration.MACHINE_SCHEDULE_VERSIONS))
+    )  # both kinds in MACHINE_VERSIONS, Schedule in MACHINE_SCHEDULE_VERSIONS
     assert len(got["ids"]) == (
         2 * len(families()) * len(PLANTS) * n_versions + n_scenario_ids + n_machine_ids
     )
@@ -111,11 +115,12 @@ def test_the_scenario_ids_exist_from_v1_and_v0_of_them_is_refused():
 
 
 def test_the_version_history_names_every_version():
-    for cls in (envs.TuneEnv, envs.ScheduleEnv):
+    tune_versions = {*_registration.PLANT_VERSIONS, *_registration.MACHINE_VERSIONS}
+    for cls, versions in ((envs.TuneEnv, tune_versions), (envs.ScheduleEnv, envs.VERSIONS)):
         doc = cls.__doc__
         assert "## Version History" in doc
         history = doc.split("## Version History")[1]
-        for version in envs.VERSIONS:
+        for version in versions:
             assert f"* v{version}:" in history
         assert "0.01" in history.split("* v0:")[0]  # v1 says what it changed
     text = DOCS.read_text()

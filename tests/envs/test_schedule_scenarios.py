@@ -116,6 +116,19 @@ def test_residual_actions_reach_and_refusals():
         env.step(bad)
 
 
+def test_the_zero_residual_action_is_the_centre_to_the_count_even_on_a_31_bit_register():
+    # float32 resolves a unit form to about 1e-7: 13 counts of a 1.3e8 integration limit
+    center = {"kp": 701, "ki": 1937, "integration_limit": 134335376, "bias": 22683}
+    env = gym.make("servogym/Schedule-PMD-Arm-v1", action_type="residual", center=center)
+    actions = env.unwrapped.actions
+    values = actions.to_values(np.zeros(env.action_space.shape, np.float32))
+    assert {k: values[k] for k in center} == center
+    spec = next(s for s in actions.specs if s.name == "integration_limit")
+    assert spec.from_unit(float(np.float32(spec.to_unit(center["integration_limit"])))) != (
+        center["integration_limit"]
+    )  # the float32 unit form would miss it
+
+
 def test_the_condition_is_observed():
     env = gym.make(SCENARIO_IDS["ArmPayload"]).unwrapped
     n_move, n_state = len(envs.MOVE_FEATURES), len(envs.STATE_FEATURES)
