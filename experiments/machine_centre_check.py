@@ -111,16 +111,63 @@ def check_at(s, values: dict[str, int], point: float, workers: int) -> dict[str,
             "worst": worst, "elapsed_s": float(report.elapsed_s)}  # fmt: skip
 
 
-def zero_action_cost(env_id: str, seeds: tuple[int, ...] = (0, 1), moves: int = 4) -> float:
-    """The id's mean cost per move at the zero action (its centre on every move) over
-    ``seeds`` episodes of ``moves`` moves: the measure of the centres' table in docs/envs.md
-    (``experiments/machine_schedule_centres.py``'s objective, whose episode loop this is)."""
+def zero_action_cost(
+    env_id: str,
+    seeds: tuple[int, ...] = (0, 1),
+    moves: int = 4,
+    center: dict[str, int] | None = None,
+) -> float:
+    """The id's mean cost per move at the zero action (its centre, or ``center``, on every
+    move) over ``seeds`` episodes of ``moves`` moves: the measure of the centres' tables in
+    docs/envs.md (``experiments/machine_schedule_centres.py``'s objective, whose episode loop
+    this is)."""
     import gymnasium as gym
     import numpy as np
     from machine_schedule_centres import episode_cost
 
-    env = gym.make(env_id, n_moves=moves)
+    env = gym.make(env_id, n_moves=moves, **({} if center is None else {"center": center}))
     return episode_cost(env, np.zeros(env.action_space.shape, np.float32), list(seeds))
+
+
+def load_done(path: Path) -> dict[tuple, dict[str, Any]]:
+    """The lines of ``path`` by (env id, ``--sets`` label, points, point); a line torn by a
+    kill is left out (checked again)."""
+    done: dict[tuple, dict[str, Any]] = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                r = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            done[(r["env_id"], r["sets"], r["points"], r["point"])] = r
+    return done
+
+
+def passed_everywhere(done: dict, eid: str, points: int) -> dict[str, dict[str, Any]]:
+    """``--sets`` label -> one line, for every label whose one set passed the check at every
+    one of ``points`` points on ``eid``."""
+    by_label: dict[str, list[dict[str, Any]]] = {}
+    for (e, label, n, _), r in done.items():
+        if e == eid and n == points:
+            by_label.setdefault(label, []).append(r)
+    return {
+        label: rs[0]
+        for label, rs in by_label.items()
+        if {r["point"] for r in rs if r["passed"]} == set(range(points))
+        and len({json.dumps(r["values"], sort_keys=True) for r in rs}) == 1
+    }
+
+
+def candidates(done: dict, ids: list[str], points: int) -> None:
+    """``--candidates``: per id, every set that passed the check at every point, with its
+    cost per move at the zero action as the id's centre (the cheapest is the ``-v2`` id's
+    centre, ``MACHINE_CENTERS_V2``), against the ``-v1`` centre's."""
+    for eid in ids:
+        print(f"{eid}: the -v1 centre {zero_action_cost(eid):.3g} per move", flush=True)
+        rows = [(zero_action_cost(eid, center=r["values"]), label)
+                for label, r in passed_everywhere(done, eid, points).items()]  # fmt: skip
+        for cost, label in sorted(rows):
+            print(f"  {cost:8.3g} per move  --sets {label}", flush=True)
 
 
 def main() -> None:
@@ -138,6 +185,10 @@ def main() -> None:
     ap.add_argument(
         "--costs", action="store_true",
         help="print every machine Schedule id's cost per move at the zero action instead",
+    )  # fmt: skip
+    ap.add_argument(
+        "--candidates", action="store_true",
+        help="per id, every set that passed at every point, with its cost at the zero action",
     )  # fmt: skip
     args = ap.parse_args()
     if args.costs:
@@ -157,14 +208,10 @@ def main() -> None:
             f"ff[-t<target>]:<sets> or oracle:<label>[:<point>]; got --sets {args.sets}."
         )
     ids = args.ids.split(",") if args.ids else machine_ids(args.version)
-    done: dict[tuple, dict[str, Any]] = {}
-    if args.out.exists():
-        for line in args.out.read_text().splitlines():
-            try:
-                r = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # a line torn by a kill: checked again
-            done[(r["env_id"], r["sets"], r["points"], r["point"])] = r
+    done = load_done(args.out)
+    if args.candidates:
+        candidates(done, [i.strip() for i in ids], args.points)
+        return
     for eid in ids:
         s = so.machine_scenario(eid.strip())
         points = s.operating_points(args.points)

@@ -1,6 +1,6 @@
 """A plain SB3 user's view: PPO trains on the ids as registered (episodes run their moves, the
 rewards are scaled once, the weights update), and the RL Zoo hyperparameters name exactly the
-scenario ids."""
+scenario ids and the machines' -v2 Schedule ids."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ MACHINE_V2_IDS = [
 HYPERPARAMS = Path(__file__).resolve().parents[2] / "servogym" / "agents" / "hyperparams"
 
 
-@pytest.mark.parametrize("eid", SCENARIO_IDS)
+@pytest.mark.parametrize("eid", SCENARIO_IDS + MACHINE_V2_IDS)
 def test_plain_ppo_trains_a_few_hundred_steps_and_updates_its_weights(eid):
     # What this asserts: plain SB3 runs on the id as registered, the untrained policy's
     # episodes run their moves, the rewards are scaled and finite, and the update changes

@@ -8,7 +8,6 @@ never from a hand-written list.
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from pathlib import Path
@@ -287,28 +286,24 @@ def test_schedule_acts_around_a_safe_centre(eid):
     assert unit.action_space == env.action_space
 
 
-CHECKS = Path(__file__).parents[2] / "experiments" / "results" / "schedule"
-CHECKS = CHECKS / "machine_centre_checks.jsonl"
+EXPERIMENTS = Path(__file__).parents[2] / "experiments"
 
 
-def _passed_everywhere(eid: str) -> list[dict]:
-    """Per ``--sets`` label of ``experiments/machine_centre_check.py`` that passed the check
-    at every one of its points on ``eid``, one of its lines."""
-    by_label: dict[tuple, list[dict]] = {}
-    for line in CHECKS.read_text().splitlines():
-        r = json.loads(line)
-        if r["env_id"] == eid:
-            by_label.setdefault((r["sets"], r["points"]), []).append(r)
-    return [
-        rs[0]
-        for (_, n), rs in by_label.items()
-        if {r["point"] for r in rs if r["passed"]} == set(range(n))
-        and len({json.dumps(r["values"], sort_keys=True) for r in rs}) == 1
-    ]
+@pytest.fixture(scope="module")
+def centre_checks():
+    """``experiments/machine_centre_check.py`` (its lines are the checks of the centres)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "machine_centre_check", EXPERIMENTS / "machine_centre_check.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 @pytest.mark.parametrize("key", sorted(MACHINE_CENTERS_V2))
-def test_every_v2_centre_is_a_set_that_passed_the_check_at_every_point(key):
+def test_every_v2_centre_is_a_set_that_passed_the_check_at_every_point(key, centre_checks):
     """The set a -v2 id runs at the zero action, every register of every axis (the action's,
     the held ones, the chip defaults), is one the multi-axis check passed at every operating
     point of the id's cycle (the lines in CHECKS, of the -v1 id the checks ran on)."""
@@ -327,8 +322,9 @@ def test_every_v2_centre_is_a_set_that_passed_the_check_at_every_point(key):
                 return False
         return True
 
-    checked = _passed_everywhere(envs.env_id("Schedule", fam, plant, 1))
-    assert any(runs(r["values"]) and len(r["values"]) >= 5 * len(sets) for r in checked), key
+    done = centre_checks.load_done(centre_checks.RESULTS / "machine_centre_checks.jsonl")
+    checked = centre_checks.passed_everywhere(done, envs.env_id("Schedule", fam, plant, 1), 3)
+    assert any(runs(r["values"]) and len(r["values"]) >= 5 * len(sets) for r in checked.values())
     assert (
         not runs(
             {f"{n}.{k}": v for k, d in enumerate(MACHINE_CENTERS[key], 1) for n, v in d.items()}

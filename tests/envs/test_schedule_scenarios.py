@@ -124,8 +124,9 @@ def test_the_zero_residual_action_is_the_centre_to_the_count_even_on_a_31_bit_re
     values = actions.to_values(np.zeros(env.action_space.shape, np.float32))
     assert {k: values[k] for k in center} == center
     spec = next(s for s in actions.specs if s.name == "integration_limit")
-    assert spec.from_unit(float(np.float32(spec.to_unit(center["integration_limit"])))) != (
-        center["integration_limit"]
+    assert (
+        spec.from_unit(float(np.float32(spec.to_unit(center["integration_limit"]))))
+        != (center["integration_limit"])
     )  # the float32 unit form would miss it
 
 
