@@ -444,7 +444,7 @@ MACHINE_CENTERS_V2: dict[tuple[str, str], tuple[dict[str, int], ...]] = {
             "friction_ff": 0,
         },
     ),
-    # servogym/Schedule-PMAC-XyStage-v1: --sets ff:held:margins
+    # servogym/Schedule-PMAC-XyStage-v1: --sets ff-t0.05:held:margins
     ("pmac", "xy-stage"): (
         {
             "notch_n1": 0,
@@ -453,9 +453,9 @@ MACHINE_CENTERS_V2: dict[tuple[str, str], tuple[dict[str, int], ...]] = {
             "notch_d2": 0,
             "proportional_gain": 36306,
             "derivative_gain": 1274,
-            "velocity_ff": 1433,
+            "velocity_ff": 1193,
             "integral_gain": 661407,
-            "acceleration_ff": 6690,
+            "acceleration_ff": 5796,
             "friction_ff": 0,
         },
         {
@@ -465,9 +465,9 @@ MACHINE_CENTERS_V2: dict[tuple[str, str], tuple[dict[str, int], ...]] = {
             "notch_d2": 0,
             "proportional_gain": 134896,
             "derivative_gain": 2293,
-            "velocity_ff": 2085,
+            "velocity_ff": 2344,
             "integral_gain": 215985,
-            "acceleration_ff": 9030,
+            "acceleration_ff": 10468,
             "friction_ff": 0,
         },
     ),
@@ -521,15 +521,15 @@ MACHINE_CENTERS_V2: dict[tuple[str, str], tuple[dict[str, int], ...]] = {
             "bias": 296,
         },
     ),
-    # servogym/Schedule-Parker6K-TwoLinkArm-v1: --sets margins
+    # servogym/Schedule-Parker6K-TwoLinkArm-v1: --sets ff-t0.05:margins
     ("parker6k", "two-link-arm"): (
-        {"sgp": 906028, "sgi": 9999999, "sgv": 1976, "sgvf": 1188, "sgaf": 155},
-        {"sgp": 869590, "sgi": 9999999, "sgv": 1453, "sgvf": 1188, "sgaf": 155},
+        {"sgp": 906028, "sgi": 9999999, "sgv": 1976, "sgvf": 1665, "sgaf": 217},
+        {"sgp": 869590, "sgi": 9999999, "sgv": 1453, "sgvf": 1144, "sgaf": 124},
     ),
-    # servogym/Schedule-Parker6K-XyStage-v1: --sets ff:margins-t0.1-w5
+    # servogym/Schedule-Parker6K-XyStage-v1: --sets ff-t0.05:margins-t0.1-w5
     ("parker6k", "xy-stage"): (
-        {"sgp": 1408774, "sgi": 9999999, "sgv": 2608, "sgvf": 3345, "sgaf": 160},
-        {"sgp": 1187463, "sgi": 9999999, "sgv": 5180, "sgvf": 3345, "sgaf": 133},
+        {"sgp": 1408774, "sgi": 9999999, "sgv": 2608, "sgvf": 2676, "sgaf": 145},
+        {"sgp": 1187463, "sgi": 9999999, "sgv": 5180, "sgvf": 5151, "sgaf": 114},
     ),
 }
 """(chip family, multi-axis plant) -> per axis, the register values of the ``-v2`` Schedule

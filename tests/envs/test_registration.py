@@ -10,6 +10,7 @@ import sys
 import warnings
 
 import gymnasium as gym
+import numpy as np
 import pytest
 
 import servogym.envs as envs
@@ -71,8 +72,8 @@ def test_docs_list_exactly_the_registered_ids():
     assert listed == envs.registered_ids()
 
 
-EXPECTED_SCALE = {0: 1.0, 1: 0.01}
-"""What each version's rewards are: -v0 raw (as first released), -v1 times 0.01."""
+EXPECTED_SCALE = {0: 1.0, 1: 0.01, 2: 0.01}
+"""What each version's rewards are: -v0 raw (as first released), -v1 and -v2 times 0.01."""
 
 
 def _first_step(eid: str, **kwargs):
@@ -92,6 +93,18 @@ def test_every_id_scales_its_rewards_as_its_version_says(eid):
     assert env.reward_scale == EXPECTED_SCALE[version]
     assert reward == EXPECTED_SCALE[version] * info["raw_reward"]
     assert info["cost"] == -info["raw_reward"]
+
+
+@pytest.mark.parametrize("eid", [i for i in envs.registered_ids() if i.endswith("-v2")])
+def test_v2_and_v1_differ_only_in_the_residual_actions_centre(eid):
+    v2, _, _ = _first_step(eid)
+    v1, _, _ = _first_step(eid[: -len("v2")] + "v1")
+    assert (v2.action_space, v2.observation_space) == (v1.action_space, v1.observation_space)
+    assert v2.reward_scale == v1.reward_scale
+    zero = np.zeros(v2.action_space.shape, np.float32)
+    assert v2.actions.to_values(zero) != v1.actions.to_values(zero)
+    like_v2, _, _ = _first_step(eid[: -len("v2")] + "v1", machine_centers=2)
+    assert like_v2.actions.to_values(zero) == v2.actions.to_values(zero)
 
 
 @pytest.mark.parametrize("eid", [i for i in envs.registered_ids() if i.endswith("-v0")])
