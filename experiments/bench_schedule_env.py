@@ -14,7 +14,12 @@ move. Two vector envs, each on ``--workers`` processes (default: the cores):
 - ``grouped``: :class:`servogym.envs.GroupedAsyncVectorEnv` of ``--group-envs`` envs split
   over the ``--workers`` processes, each stepping its group in turn.
 
-Both autoreset in the same step (``AutoresetMode.SAME_STEP``, as SB3's vector envs do), so
+With ``--sb3``, also the vector envs ``servogym train`` uses (SB3's interface): SB3's
+``SubprocVecEnv`` of ``--workers`` envs (the default) and
+:class:`servogym.agents.GroupedVecEnv` of ``--group-envs`` envs over ``--workers`` processes
+(``servogym train --n-envs 8 --workers 2``).
+
+All autoreset in the same step (``AutoresetMode.SAME_STEP``, as SB3's vector envs do), so
 every vector step is one move in each env and a vector env's rate counts ``num_envs`` env
 steps per vector step. (Until 2026-12-04 the script used gymnasium's default ``NEXT_STEP``,
 whose reset-only step after each episode's last move was counted as an env step: with 8
@@ -72,6 +77,35 @@ def _vector(venv: gym.vector.VectorEnv, moves: int) -> float:
     return rate
 
 
+def _sb3(venv, moves: int) -> float:
+    """As :func:`_vector`, for an SB3 vector env (it autoresets in the same step)."""
+    n = venv.num_envs
+    zero = np.zeros((n, *venv.action_space.shape), np.float32)
+    venv.seed(0)
+    venv.reset()
+    for _ in range(8):
+        venv.step(zero)
+    steps = max(1, moves // n)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        venv.step(zero)
+    rate = n * steps / (time.perf_counter() - t0)
+    venv.close()
+    return rate
+
+
+def _sb3_envs(env_id: str, kwargs: dict, n_group: int, workers: int) -> dict:
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    from servogym.agents import GroupedVecEnv
+
+    fn = partial(gym.make, env_id, **kwargs)
+    return {
+        "sb3_subproc": lambda: SubprocVecEnv([fn] * workers),
+        "sb3_grouped": lambda: GroupedVecEnv([fn] * n_group, workers=workers),
+    }
+
+
 def _async(env_id: str, kwargs: dict, n: int) -> gym.vector.VectorEnv:
     return gym.make_vec(
         env_id,
@@ -97,6 +131,7 @@ def main() -> None:
     ap.add_argument(
         "--group-envs", type=int, default=8, help="envs of the grouped vector env (>= workers)"
     )
+    ap.add_argument("--sb3", action="store_true", help="also SB3's vector envs (train's)")
     ap.add_argument("--json", action="store_true", help="print one JSON line")
     args = ap.parse_args()
     for name in ("steps", "repeats", "workers"):
@@ -110,11 +145,14 @@ def main() -> None:
     preset = "scenario_name" in gym.spec(args.env).kwargs  # a scenario id, any version
     kwargs = {} if preset else {"action_type": "residual"}
     rates: dict[str, list[float]] = {"single": [], "async": [], "grouped": []}
+    sb3 = _sb3_envs(args.env, kwargs, args.group_envs, args.workers) if args.sb3 else {}
     for _ in range(args.repeats):
         rates["single"].append(_single(args.env, kwargs, args.steps))
         rates["async"].append(_vector(_async(args.env, kwargs, args.workers), args.steps))
         venv = _grouped(args.env, kwargs, args.group_envs, args.workers)
         rates["grouped"].append(_vector(venv, args.steps))
+        for name, make in sb3.items():
+            rates.setdefault(name, []).append(_sb3(make(), args.steps))
     med = {k: statistics.median(v) for k, v in rates.items()}
     out = {
         "env_id": args.env,
@@ -129,6 +167,8 @@ def main() -> None:
         "grouped_steps_per_s": med["grouped"],
         "async_ratio": med["async"] / med["single"],
         "grouped_ratio": med["grouped"] / med["single"],
+        **{f"{k}_steps_per_s": med[k] for k in sb3},
+        **{f"{k}_ratio": med[k] / med["single"] for k in sb3},
     }
     if args.json:
         print(json.dumps(out))
@@ -141,6 +181,13 @@ def main() -> None:
             f"{args.repeats}; load average {out['load_average_1min']:.1f} on "
             f"{out['cpu_count']} cores)"
         )
+        if sb3:
+            print(
+                f"SB3 (servogym train): SubprocVecEnv({args.workers}) "
+                f"{med['sb3_subproc']:.1f} steps/s, ratio {out['sb3_subproc_ratio']:.2f}; "
+                f"GroupedVecEnv({args.group_envs} envs, {args.workers} workers) "
+                f"{med['sb3_grouped']:.1f} steps/s, ratio {out['sb3_grouped_ratio']:.2f}"
+            )
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ __all__ = [
     "ConstantPolicy",
     "EpisodeOutcome",
     "GainTablePolicy",
+    "GroupedVecEnv",
     "ModelPolicy",
     "baseline_policies",
     "load_model",
@@ -45,3 +46,11 @@ __all__ = [
     "summarize",
     "train",
 ]
+
+
+def __getattr__(name: str):
+    if name == "GroupedVecEnv":  # imports stable_baselines3 (and torch) only when asked for
+        from servogym.agents._vecenv import GroupedVecEnv
+
+        return GroupedVecEnv
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

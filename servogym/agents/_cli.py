@@ -52,6 +52,15 @@ def train_command(
         "runs/run"
     ),
     n_envs: Annotated[int, typer.Option(min=1, help="Envs stepped in parallel.")] = 2,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Step the --n-envs envs in this many processes, each stepping its group in "
+            "turn (same results; e.g. --n-envs 8 --workers 2 on 2 cores). Default: one "
+            "process per env.",
+        ),
+    ] = None,
     env_kwargs: Annotated[
         str | None,
         typer.Option(help="gymnasium.make keyword arguments as JSON, e.g. '{\"n_moves\": 8}'."),
@@ -94,6 +103,8 @@ def train_command(
     check_count("--seed", seed, low=0, high=2**32 - 1)
     check_count("--timesteps", timesteps, high=MAX_TIMESTEPS)
     check_count("--n-envs", n_envs, high=MAX_N_ENVS)
+    if workers is not None:
+        check_count("--workers", workers, high=n_envs)
     check_count("--checkpoint-every", checkpoint_every, high=MAX_TIMESTEPS)
     check_number("--minutes", minutes, low=0, low_open=True, high=60 * 24 * 365)
     if out.exists() and not out.is_dir():
@@ -116,7 +127,7 @@ def train_command(
     bar = not as_json and sys.stdout.isatty()
     try:
         path = _train(env, algo, timesteps, seed, out, n_envs, env_kw, algo_kw, minutes,
-                      checkpoint_every, bar, resume)  # fmt: skip
+                      checkpoint_every, bar, resume, workers)  # fmt: skip
     except TrainingStopped as stopped:
         typer.echo(
             f"stopped by {stopped.signal_name} at {stopped.timesteps} steps: saved "
@@ -270,6 +281,7 @@ def _train(
     checkpoint_every,
     bar,
     resume=False,
+    workers=None,
 ):
     from servogym.agents._train import train
 
@@ -287,6 +299,7 @@ def _train(
         progress_bar=bar,
         log_progress=not bar,
         resume=resume,
+        workers=workers,
     )
 
 

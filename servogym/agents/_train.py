@@ -279,6 +279,7 @@ def train(
     wall_time_s: float | None = None,
     progress_bar: bool = True,
     subprocess: bool = True,
+    workers: int | None = None,
     torch_threads: int = 1,
     verbose: int = 0,
     resume: bool = False,
@@ -321,6 +322,10 @@ def train(
         TrainingStopped: on SIGINT or SIGTERM, after ``model.zip`` and ``config.json``
             were saved (a second signal stops at once).
         subprocess: ``SubprocVecEnv`` (one process per env) instead of ``DummyVecEnv``.
+        workers: Step the ``n_envs`` envs in this many processes, each stepping its group in
+            turn (:class:`servogym.agents.GroupedVecEnv`: the same results, fewer waits for
+            the slowest move; docs/envs.md, "Speed"); ``None``: one process per env
+            (``subprocess``). 1 to ``n_envs``.
         torch_threads: Torch CPU threads of the learner.
         verbose: SB3 verbosity.
     """
@@ -346,8 +351,12 @@ def train(
             )
     scale = effective_reward_scale(env_kwargs, reward_scale)
     factories = [_EnvFactory(env_id, {**run_kwargs, "reward_scale": scale}) for _ in range(n_envs)]
-    vec_cls = SubprocVecEnv if subprocess and n_envs > 1 else DummyVecEnv
-    venv = vec_cls(factories)
+    if workers is not None:
+        from servogym.agents._vecenv import GroupedVecEnv
+
+        venv = GroupedVecEnv(factories, workers=workers)  # refuses a bad workers
+    else:
+        venv = (SubprocVecEnv if subprocess and n_envs > 1 else DummyVecEnv)(factories)
     venv.seed(seed + trained)
     tb = None
     try:

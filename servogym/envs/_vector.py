@@ -66,16 +66,13 @@ def _worker(remote: Any, parent_remote: Any, env_fns: CloudpickleWrapper) -> Non
             elif cmd == "reset":
                 seeds, options = data
                 results = [
-                    env.reset(seed=s, options=options) for env, s in zip(envs, seeds, strict=True)
+                    env.reset(seed=s, options=o)
+                    for env, s, o in zip(envs, seeds, options, strict=True)
                 ]
                 remote.send(("ok", results))
-            elif cmd == "call":
-                name, args, kwargs = data
-                results = []
-                for env in envs:
-                    attr = env.get_wrapper_attr(name)
-                    results.append(attr(*args, **kwargs) if callable(attr) else attr)
-                remote.send(("ok", results))
+            elif cmd == "apply":
+                fn, local = data
+                remote.send(("ok", [fn.fn(envs[i]) for i in local]))
             elif cmd == "close":
                 break
             else:
@@ -179,6 +176,40 @@ class GroupedAsyncVectorEnv(VectorEnv):
         if self._closed:
             raise RuntimeError("this GroupedAsyncVectorEnv is closed; make a new one.")
 
+    def reset_each(
+        self, seeds: Sequence[int | None], options: Sequence[dict[str, Any] | None]
+    ) -> list[tuple[Any, dict[str, Any]]]:
+        """Reset env ``i`` with ``seeds[i]`` and ``options[i]``; its ``(obs, info)`` in env
+        order (what :meth:`reset` batches, and an SB3 vector env reads one by one)."""
+        self._check_open()
+        for remote, group in zip(self._remotes, self.groups, strict=True):
+            remote.send(("reset", ([seeds[i] for i in group], [options[i] for i in group])))
+        return [r for part in self._receive_all() for r in part]
+
+    def step_each(self, actions: Sequence[Any]) -> list[tuple]:
+        """Step env ``i`` with ``actions[i]``; per env in env order ``(obs, reward,
+        terminated, truncated, info, final)``, ``final`` the ended episode's last ``(obs,
+        info)`` (the env was then reset: ``obs`` and ``info`` are the reset's) or ``None``."""
+        self._check_open()
+        for remote, group in zip(self._remotes, self.groups, strict=True):
+            remote.send(("step", [actions[i] for i in group]))
+        return [r for part in self._receive_all() for r in part]
+
+    def apply(self, fn: Callable[[gym.Env], Any], indices: Sequence[int] | None = None) -> list:
+        """``fn(env)`` in the worker of each env of ``indices`` (default: every one), in the
+        order given; ``fn`` is sent with cloudpickle, so a lambda works."""
+        self._check_open()
+        indices = list(range(self.num_envs)) if indices is None else [int(i) for i in indices]
+        where = {i: (k, j) for k, group in enumerate(self.groups) for j, i in enumerate(group)}
+        bad = [i for i in indices if i not in where]
+        if bad:
+            raise ValueError(f"indices must be env numbers 0 .. {self.num_envs - 1}; got {bad}.")
+        asked = [[where[i][1] for i in indices if where[i][0] == k] for k in range(self.workers)]
+        for remote, local in zip(self._remotes, asked, strict=True):
+            remote.send(("apply", (CloudpickleWrapper(fn), local)))
+        parts = [iter(part) for part in self._receive_all()]
+        return [next(parts[where[i][0]]) for i in indices]
+
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[Any, dict[str, Any]]:
@@ -195,9 +226,7 @@ class GroupedAsyncVectorEnv(VectorEnv):
                     f"seed must be None, an int or one seed per env ({self.num_envs}); "
                     f"got {len(seeds)} seeds."
                 )
-        for remote, group in zip(self._remotes, self.groups, strict=True):
-            remote.send(("reset", ([seeds[i] for i in group], options)))
-        results = [r for part in self._receive_all() for r in part]
+        results = self.reset_each(seeds, [options] * self.num_envs)
         infos: dict[str, Any] = {}
         for i, (_, info) in enumerate(results):
             infos = self._add_info(infos, info, i)
@@ -206,11 +235,7 @@ class GroupedAsyncVectorEnv(VectorEnv):
 
     def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict]:
         """Step every env with its row of ``actions`` (an env whose episode ends is reset)."""
-        self._check_open()
-        rows = list(iterate(self.action_space, actions))
-        for remote, group in zip(self._remotes, self.groups, strict=True):
-            remote.send(("step", [rows[i] for i in group]))
-        results = [r for part in self._receive_all() for r in part]
+        results = self.step_each(list(iterate(self.action_space, actions)))
         rewards = np.array([r[1] for r in results], dtype=np.float64)
         terminated = np.array([r[2] for r in results], dtype=np.bool_)
         truncated = np.array([r[3] for r in results], dtype=np.bool_)
@@ -224,10 +249,12 @@ class GroupedAsyncVectorEnv(VectorEnv):
 
     def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
         """Call method ``name`` of every env (or read attribute ``name``), one result per env."""
-        self._check_open()
-        for remote in self._remotes:
-            remote.send(("call", (name, args, kwargs)))
-        return tuple(r for part in self._receive_all() for r in part)
+
+        def call(env: gym.Env) -> Any:
+            attr = env.get_wrapper_attr(name)
+            return attr(*args, **kwargs) if callable(attr) else attr
+
+        return tuple(self.apply(call))
 
     def get_attr(self, name: str) -> tuple[Any, ...]:
         """Attribute ``name`` of every env."""

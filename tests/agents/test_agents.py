@@ -242,3 +242,22 @@ def test_evaluate_runs_the_baselines_with_their_own_registers_on_a_residual_id()
     assert residual.to_values(residual.from_values({})) != unit.unwrapped.actions.to_values(
         unit.unwrapped.actions.from_values({})
     )
+
+
+def test_cli_train_with_grouped_workers_gives_the_same_model(tmp_path):
+    """--workers steps the --n-envs envs in fewer processes (GroupedVecEnv): the envs give
+    the same steps, so PPO learns the same weights as with one process per env."""
+    runner = CliRunner()
+    base = ["train", "--env", SCHEDULE, "--algo", "ppo", "--timesteps", "32", "--seed", "3",
+            "--n-envs", "4", "--algo-kwargs", '{"n_steps": 8, "batch_size": 16}']  # fmt: skip
+    for name, extra in (("own", []), ("grouped", ["--workers", "2"])):
+        res = runner.invoke(_app(), [*base, "--out", str(tmp_path / name), *extra])
+        assert res.exit_code == 0, res.output
+    own, grouped = (load_model(tmp_path / n / "model.zip") for n in ("own", "grouped"))
+    a, b = own.policy.state_dict(), grouped.policy.state_dict()
+    assert a.keys() == b.keys()
+    for key in a:
+        assert (a[key] == b[key]).all(), key
+    res = runner.invoke(_app(), [*base, "--out", str(tmp_path / "bad"), "--workers", "5"])
+    assert res.exit_code == 2
+    assert "--workers must satisfy 1 <= --workers <= 4; got --workers 5" in res.output
