@@ -113,6 +113,27 @@ class LinearCheck:
         return float(worst), where
 
 
+def log_registers(
+    space: Any, start: dict[str, int], registers: dict[str, tuple[str, ...]]
+) -> tuple[list[str], np.ndarray, Any]:
+    """The entries of ``start`` whose register is one of the chip family's ``registers``
+    (every axis's), their logs (a 0 as log 1), and the map from a vector of logs back to
+    ``start`` with those registers rounded and held in their legal ranges (>= 1)."""
+    from servogym.chips._family import get_chip
+
+    family = get_chip(space.chip_model)[0].name
+    names = [n for n in start if n.split(".")[0] in registers[family]]
+
+    def values_of(x: np.ndarray) -> dict[str, int]:
+        out = dict(start)
+        for n, v in zip(names, x, strict=True):
+            spec = space.space[n]
+            out[n] = int(min(max(round(float(np.exp(v))), max(spec.low, 1)), spec.high))
+        return out
+
+    return names, np.log([max(start[n], 1) for n in names]), values_of
+
+
 def move_into_margins(
     problem: Any,
     limits: Any,
@@ -130,19 +151,8 @@ def move_into_margins(
     ``slack`` is the best reached)."""
     import scipy.optimize
 
-    from servogym.chips._family import get_chip
-
     space = problem.space
-    gains = GAINS[get_chip(space.chip_model)[0].name]
-    names = [n for n in start if n.split(".")[0] in gains]
-    x0 = np.log([max(start[n], 1) for n in names])
-
-    def values_of(x: np.ndarray) -> dict[str, int]:
-        out = dict(start)
-        for n, v in zip(names, x, strict=True):
-            spec = space.space[n]
-            out[n] = int(min(max(round(float(np.exp(v))), max(spec.low, 1)), spec.high))
-        return out
+    names, x0, values_of = log_registers(space, start, GAINS)
 
     t0 = time.perf_counter()
     lin = LinearCheck(problem, limits, space.make_params(start).sets, plants)
@@ -267,19 +277,8 @@ def fit_feed_forward(
     the set of the best ratio reached, found or not)."""
     import scipy.optimize
 
-    from servogym.chips._family import get_chip
-
     space = problem.space
-    ff = FEED_FORWARD[get_chip(space.chip_model)[0].name]
-    names = [n for n in start if n.split(".")[0] in ff]
-    x0 = np.log([max(start[n], 1) for n in names])
-
-    def values_of(x: np.ndarray) -> dict[str, int]:
-        out = dict(start)
-        for n, v in zip(names, x, strict=True):
-            spec = space.space[n]
-            out[n] = int(min(max(round(float(np.exp(v))), max(spec.low, 1)), spec.high))
-        return out
+    names, x0, values_of = log_registers(space, start, FEED_FORWARD)
 
     t0 = time.perf_counter()
     errors = TaskErrors(problem, limits, space.make_params(start).sets, plants)
