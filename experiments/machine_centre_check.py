@@ -277,7 +277,12 @@ def feed_forward(args, done: dict, eid: str, s, points: list[float]) -> bool:
 
     label, source = args.sets, args.sets.split(":", 1)[1]
     head = label.split(":", 1)[0]  # ff (the default target) or ff-t<target>
-    target = float(head[len("ff-t") :]) if head.startswith("ff-t") else FF_TARGET
+    try:
+        target = float(head[len("ff-t") :]) if head.startswith("ff-t") else FF_TARGET
+    except ValueError:
+        target = float("nan")
+    if not 0 < target <= FF_TARGET:
+        raise SystemExit(f"--sets {label}: ff-t<target> needs 0 < target <= {FF_TARGET}.")
     prev = [done.get((eid, label, args.points, i)) for i in range(len(points))]
     values = next((p["values"] for p in prev if p), None)
     extra: dict[str, Any] = {}
