@@ -64,9 +64,8 @@ class GroupedVecEnv(VecEnv):
         obs, rewards, dones, infos = [], [], [], []
         for i, (o, reward, terminated, truncated, info, final) in enumerate(results):
             if final is not None:  # the env was reset: SB3's infos are the last step's
-                final_obs, info = final[0], dict(final[1])
-                info["terminal_observation"] = final_obs
-                self.reset_infos[i] = results[i][4]
+                self.reset_infos[i] = info
+                info = {**final[1], "terminal_observation": final[0]}
             info["TimeLimit.truncated"] = bool(truncated and not terminated)
             obs.append(o)
             rewards.append(reward)
@@ -77,18 +76,13 @@ class GroupedVecEnv(VecEnv):
     def close(self) -> None:
         self.venv.close()
 
-    def _indices(self, indices: VecEnvIndices) -> list[int]:
-        if indices is None:
-            return list(range(self.num_envs))
-        if isinstance(indices, int):
-            return [indices]
-        return [int(i) for i in indices]
-
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        return self.venv.apply(lambda env: env.get_wrapper_attr(attr_name), self._indices(indices))
+        return self.venv.apply(
+            lambda env: env.get_wrapper_attr(attr_name), self._get_indices(indices)
+        )
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        self.venv.apply(lambda env: setattr(env, attr_name, value), self._indices(indices))
+        self.venv.apply(lambda env: setattr(env, attr_name, value), self._get_indices(indices))
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs
@@ -96,9 +90,11 @@ class GroupedVecEnv(VecEnv):
         def call(env: gym.Env) -> Any:
             return env.get_wrapper_attr(method_name)(*method_args, **method_kwargs)
 
-        return self.venv.apply(call, self._indices(indices))
+        return self.venv.apply(call, self._get_indices(indices))
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
         from stable_baselines3.common.env_util import is_wrapped
 
-        return self.venv.apply(lambda env: is_wrapped(env, wrapper_class), self._indices(indices))
+        return self.venv.apply(
+            lambda env: is_wrapped(env, wrapper_class), self._get_indices(indices)
+        )
